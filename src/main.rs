@@ -1,0 +1,462 @@
+//! The `lfi-bridge` command line: thin parsing and one function per mode.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use lfi_bridge::eval::{self, Observation};
+use lfi_bridge::imageio;
+use lfi_bridge::kb::KnowledgeBase;
+use lfi_bridge::sim::{SimConfig, Simulator};
+use lfi_bridge::truth::{EstimatePart, EstimateRecord, parse_truth};
+use lfi_bridge::vision::{Estimator, Face, Params, Pt, Template};
+
+#[derive(Parser)]
+#[command(
+    name = "lfi-bridge",
+    version,
+    about = "Part type, face and pose from a conveyor camera (LFI method)"
+)]
+struct Cli {
+    /// OpenCV worker threads (1 keeps timings comparable with the benchmark; 0 = OpenCV's default).
+    #[arg(long, global = true, default_value_t = 1)]
+    cv_threads: i32,
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Add one template (one clean image of one face of one part type) to a knowledge base.
+    Enroll {
+        #[arg(long)]
+        kb: PathBuf,
+        /// Type name (as reported and as written in ground truth).
+        #[arg(long = "type")]
+        type_name: String,
+        /// Numeric type id served to the PLC (1..=65535).
+        #[arg(long)]
+        id: u16,
+        #[arg(long, value_parser = parse_face)]
+        face: Face,
+        /// Template point reported as the part's position, "X,Y" in template pixels (default: the image centre).
+        #[arg(long, value_parser = parse_point)]
+        origin: Option<Pt>,
+        image: PathBuf,
+    },
+    /// Render scenes of built-in parts with ground truth (images/, templates/, truth.jsonl).
+    Simulate {
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 18)]
+        count: u64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Gaussian noise sigma (gray levels) for every scene instead of each condition's own.
+        #[arg(long)]
+        noise: Option<f64>,
+        #[arg(long, default_value_t = 2592)]
+        width: usize,
+        #[arg(long, default_value_t = 1944)]
+        height: usize,
+    },
+    /// Estimate parts in images.
+    Estimate {
+        #[arg(long)]
+        kb: PathBuf,
+        /// One JSON object per image per line.
+        #[arg(long)]
+        json: bool,
+        /// Also write an annotated copy of each image into this folder.
+        #[arg(long)]
+        overlay_dir: Option<PathBuf>,
+        /// Estimate each image this many times and report the median time per stage.
+        #[arg(long, default_value_t = 1)]
+        repeat: usize,
+        #[arg(required = true)]
+        images: Vec<PathBuf>,
+    },
+    /// Score the estimator against ground truth (truth.jsonl beside images/).
+    Eval {
+        #[arg(long)]
+        kb: PathBuf,
+        #[arg(long)]
+        truth: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn parse_face(s: &str) -> Result<Face, String> {
+    s.parse()
+}
+
+fn parse_point(s: &str) -> Result<Pt, String> {
+    let (x, y) = s
+        .split_once(',')
+        .ok_or_else(|| format!("expected X,Y, got {s:?}"))?;
+    let x: f64 = x
+        .trim()
+        .parse()
+        .map_err(|e| format!("bad X in {s:?}: {e}"))?;
+    let y: f64 = y
+        .trim()
+        .parse()
+        .map_err(|e| format!("bad Y in {s:?}: {e}"))?;
+    if !x.is_finite() || !y.is_finite() {
+        return Err(format!("origin {s:?} is not finite"));
+    }
+    Ok(Pt::new(x, y))
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .init();
+    let cli = Cli::parse();
+    if cli.cv_threads > 0 {
+        let _ = opencv::core::set_num_threads(cli.cv_threads);
+    }
+    let result = match cli.cmd {
+        Cmd::Enroll {
+            kb,
+            type_name,
+            id,
+            face,
+            origin,
+            image,
+        } => enroll(&kb, &type_name, id, face, origin, &image),
+        Cmd::Simulate {
+            out,
+            count,
+            seed,
+            noise,
+            width,
+            height,
+        } => simulate(
+            &out,
+            count,
+            SimConfig {
+                width,
+                height,
+                seed,
+                noise,
+            },
+        ),
+        Cmd::Estimate {
+            kb,
+            json,
+            overlay_dir,
+            repeat,
+            images,
+        } => estimate(&kb, json, overlay_dir.as_deref(), repeat.max(1), &images),
+        Cmd::Eval { kb, truth, json } => evaluate(&kb, &truth, json),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn enroll(
+    kb_path: &Path,
+    type_name: &str,
+    id: u16,
+    face: Face,
+    origin: Option<Pt>,
+    image: &Path,
+) -> Result<ExitCode> {
+    let mut kb = KnowledgeBase::load_or_new(kb_path)?;
+    let (img, notes) = imageio::read_gray(image)?;
+    for n in notes {
+        tracing::warn!(image = %image.display(), "{n}");
+    }
+    let t = Template::from_image(img.view()?, type_name, id, face, origin, &Params::default())
+        .with_context(|| format!("cannot enroll {}", image.display()))?;
+    let summary = format!(
+        "{} {} (id {}): {} outline points, {} line features, area {:.0} px^2, outline centroid ({:.2}, {:.2}), origin ({:.2}, {:.2})",
+        t.type_name,
+        t.face,
+        t.type_id,
+        t.outline.len(),
+        t.segments.len(),
+        t.area,
+        t.centroid.x,
+        t.centroid.y,
+        t.origin.x,
+        t.origin.y
+    );
+    let replaced = kb.enroll(t, image.display().to_string())?;
+    kb.save(kb_path)?;
+    println!(
+        "{} {summary} in {}",
+        if replaced { "replaced" } else { "enrolled" },
+        kb_path.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+fn bar(len: u64, what: &str) -> ProgressBar {
+    let pb = ProgressBar::new(len);
+    pb.set_style(
+        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta}")
+            .expect("static template")
+            .progress_chars("=> "),
+    );
+    pb.set_message(what.to_string());
+    pb
+}
+
+fn simulate(out: &Path, count: u64, cfg: SimConfig) -> Result<ExitCode> {
+    let sim = Simulator::new(cfg)?;
+    let images = out.join("images");
+    let templates = out.join("templates");
+    for d in [&images, &templates] {
+        std::fs::create_dir_all(d).with_context(|| format!("cannot create {}", d.display()))?;
+    }
+    for (name, face, img) in sim.templates()? {
+        imageio::write_png(&templates.join(format!("{name}_{face}.png")), &img)?;
+    }
+    let pb = bar(count, "rendering");
+    let mut lines = String::new();
+    for i in 0..count {
+        let scene = sim.scene(i)?;
+        imageio::write_png(&out.join(&scene.truth.image), &scene.image)?;
+        let mut v = serde_json::to_value(&scene.truth)?;
+        if let (Some(obj), serde_json::Value::Object(extra)) =
+            (v.as_object_mut(), serde_json::to_value(&scene.extra)?)
+        {
+            obj.extend(extra);
+        }
+        lines.push_str(&serde_json::to_string(&v)?);
+        lines.push('\n');
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let truth = out.join("truth.jsonl");
+    imageio::write_atomic(&truth, lines.as_bytes())
+        .with_context(|| format!("cannot write {}", truth.display()))?;
+    println!(
+        "wrote {count} scenes, {} templates and {}",
+        sim.type_names().len() * 2,
+        truth.display()
+    );
+    println!(
+        "types (enroll with ids in this order): {}; never enrolled: {}",
+        sim.type_names().join(", "),
+        sim.unknown_type_name()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+fn load_estimator(kb_path: &Path) -> Result<(Estimator, Vec<String>)> {
+    let kb = KnowledgeBase::load(kb_path)?;
+    let names = kb.templates().iter().map(|t| t.type_name.clone()).collect();
+    let est = Estimator::new(&kb.templates(), Params::default())
+        .with_context(|| format!("knowledge base {}", kb_path.display()))?;
+    Ok((est, names))
+}
+
+/// A frame that could not be estimated, in the estimate format: one "frame error" entry.
+fn frame_error_part() -> EstimatePart {
+    EstimatePart {
+        type_name: None,
+        type_id: 0,
+        face: None,
+        angle_deg: 0.0,
+        x_px: 0.0,
+        y_px: 0.0,
+        confidence: 0.0,
+        accepted: false,
+        reason: lfi_bridge::vision::Reason::FrameError.as_str().into(),
+    }
+}
+
+fn estimate(
+    kb_path: &Path,
+    json: bool,
+    overlay_dir: Option<&Path>,
+    repeat: usize,
+    images: &[PathBuf],
+) -> Result<ExitCode> {
+    let (est, _) = load_estimator(kb_path)?;
+    let mut failed = 0;
+    for path in images {
+        let shown = path.display().to_string();
+        let outcome = imageio::read_gray(path)
+            .map_err(anyhow::Error::from)
+            .and_then(|(img, notes)| {
+                for n in notes {
+                    tracing::warn!(image = %shown, "{n}");
+                }
+                let mut runs = Vec::with_capacity(repeat);
+                for _ in 0..repeat {
+                    let t = Instant::now();
+                    let fe = est.estimate(img.view()?)?;
+                    runs.push((t.elapsed().as_secs_f64() * 1e3, fe));
+                }
+                let (ms, mut fe) = median_run(runs);
+                if let Some(dir) = overlay_dir {
+                    let pic = lfi_bridge::overlay::draw(img.view()?, &fe, &est, 0.5)?;
+                    let name = path
+                        .file_stem()
+                        .map(|s| s.to_string_lossy().into_owned())
+                        .unwrap_or_else(|| "frame".into());
+                    let bytes = imageio::encode_mat(&pic, ".png").map_err(anyhow::Error::msg)?;
+                    std::fs::create_dir_all(dir)?;
+                    imageio::write_atomic(&dir.join(format!("{name}.overlay.png")), &bytes)?;
+                }
+                fe.timings.total = ms;
+                Ok((fe, ms))
+            });
+        match outcome {
+            Ok((fe, ms)) => {
+                for p in &fe.parts {
+                    tracing::debug!(image = %shown, reason = %p.reason, "{}", p.detail);
+                }
+                if json {
+                    let rec = EstimateRecord {
+                        image: shown,
+                        elapsed_ms: (ms * 1000.0).round() / 1000.0,
+                        parts: fe.parts.iter().map(EstimatePart::from_estimate).collect(),
+                    };
+                    println!("{}", serde_json::to_string(&rec)?);
+                } else {
+                    let t = fe.timings;
+                    println!(
+                        "{shown}: {} part(s), {ms:.1} ms (detect {:.1}, boundary {:.1}, lines {:.1}, correlate {:.1}, register {:.1}, confidence {:.1}), noise sigma {:.1}",
+                        fe.parts.len(),
+                        t.detect,
+                        t.boundary,
+                        t.lines,
+                        t.correlate,
+                        t.register,
+                        t.confidence,
+                        fe.noise_sigma
+                    );
+                    for p in &fe.parts {
+                        println!(
+                            "  {} {} angle {:.2} deg at ({:.1}, {:.1}) conf {:.3} {}{}",
+                            p.type_name.as_deref().unwrap_or("-"),
+                            p.face.map(|f| f.as_str()).unwrap_or("-"),
+                            p.angle_deg,
+                            p.x,
+                            p.y,
+                            p.confidence,
+                            if p.accepted { "ACCEPT" } else { "REJECT: " },
+                            if p.accepted { "" } else { p.reason.as_str() }
+                        );
+                        println!("      {}", p.detail);
+                    }
+                }
+            }
+            Err(e) => {
+                failed += 1;
+                eprintln!("error: {shown}: {e:#}");
+                if json {
+                    let rec = EstimateRecord {
+                        image: shown,
+                        elapsed_ms: 0.0,
+                        parts: vec![frame_error_part()],
+                    };
+                    println!("{}", serde_json::to_string(&rec)?);
+                }
+            }
+        }
+    }
+    Ok(if failed > 0 {
+        ExitCode::from(1)
+    } else {
+        ExitCode::SUCCESS
+    })
+}
+
+/// The run with the median total time, its stage timings replaced by the per-stage medians.
+fn median_run(
+    mut runs: Vec<(f64, lfi_bridge::vision::FrameEstimate)>,
+) -> (f64, lfi_bridge::vision::FrameEstimate) {
+    let med = |f: &dyn Fn(&lfi_bridge::vision::Timings) -> f64,
+               runs: &[(f64, lfi_bridge::vision::FrameEstimate)]| {
+        let mut v: Vec<f64> = runs.iter().map(|r| f(&r.1.timings)).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let t = lfi_bridge::vision::Timings {
+        detect: med(&|t| t.detect, &runs),
+        boundary: med(&|t| t.boundary, &runs),
+        lines: med(&|t| t.lines, &runs),
+        correlate: med(&|t| t.correlate, &runs),
+        register: med(&|t| t.register, &runs),
+        confidence: med(&|t| t.confidence, &runs),
+        total: 0.0,
+    };
+    runs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mid = runs.len() / 2;
+    let (ms, mut fe) = runs.swap_remove(mid);
+    fe.timings = t;
+    (ms, fe)
+}
+
+fn evaluate(kb_path: &Path, truth_path: &Path, json: bool) -> Result<ExitCode> {
+    let (est, enrolled) = load_estimator(kb_path)?;
+    let text = std::fs::read_to_string(truth_path)
+        .with_context(|| format!("cannot read truth {}", truth_path.display()))?;
+    let records =
+        parse_truth(&text, &truth_path.display().to_string()).map_err(anyhow::Error::msg)?;
+    if records.is_empty() {
+        bail!("truth {} has no records", truth_path.display());
+    }
+    let base = truth_path.parent().unwrap_or(Path::new("."));
+    let pb = bar(records.len() as u64, "estimating");
+    let mut obs = Vec::with_capacity(records.len());
+    let mut errors = Vec::new();
+    for rec in records {
+        let path = base.join(&rec.image);
+        let outcome = imageio::read_gray(&path)
+            .map_err(anyhow::Error::from)
+            .and_then(|(img, _)| {
+                let t = Instant::now();
+                let fe = est.estimate(img.view()?)?;
+                Ok((fe, t.elapsed().as_secs_f64() * 1e3))
+            });
+        match outcome {
+            Ok((fe, ms)) => obs.push(Observation {
+                truth: rec,
+                parts: fe.parts.iter().map(EstimatePart::from_estimate).collect(),
+                elapsed_ms: ms,
+            }),
+            Err(e) => {
+                errors.push(format!("{}: {e:#}", path.display()));
+                obs.push(Observation {
+                    truth: rec,
+                    parts: vec![frame_error_part()],
+                    elapsed_ms: 0.0,
+                });
+            }
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let report = eval::evaluate(&obs, &enrolled);
+    if json {
+        let mut v = serde_json::to_value(&report)?;
+        v["frame_errors"] = serde_json::to_value(&errors)?;
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        print!("{}", eval::render_text(&report));
+        for e in &errors {
+            println!("frame error: {e}");
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,136 @@
+//! Drawing estimates over a frame: what the operator and the debug output see.
+
+use opencv::core::{self, Mat, Point, Scalar};
+use opencv::imgproc;
+
+use crate::vision::{Estimator, FrameEstimate, GrayView, Pt};
+
+const GREEN: (f64, f64, f64) = (60.0, 220.0, 60.0);
+const RED: (f64, f64, f64) = (40.0, 40.0, 235.0);
+const BLUE: (f64, f64, f64) = (255.0, 160.0, 40.0);
+const YELLOW: (f64, f64, f64) = (0.0, 220.0, 255.0);
+
+fn bgr(c: (f64, f64, f64)) -> Scalar {
+    Scalar::new(c.0, c.1, c.2, 0.0)
+}
+
+fn poly(
+    img: &mut Mat,
+    pts: &[Pt],
+    scale: f64,
+    color: Scalar,
+    thickness: i32,
+) -> opencv::Result<()> {
+    let v: core::Vector<Point> = pts
+        .iter()
+        .map(|p| {
+            Point::new(
+                (p.x * scale * 16.0).round() as i32,
+                (p.y * scale * 16.0).round() as i32,
+            )
+        })
+        .collect();
+    let mut all = core::Vector::<core::Vector<Point>>::new();
+    all.push(v);
+    imgproc::polylines(img, &all, true, color, thickness, imgproc::LINE_AA, 4)
+}
+
+fn line(
+    img: &mut Mat,
+    a: Pt,
+    b: Pt,
+    scale: f64,
+    color: Scalar,
+    thickness: i32,
+) -> opencv::Result<()> {
+    let p = |q: Pt| {
+        Point::new(
+            (q.x * scale * 16.0).round() as i32,
+            (q.y * scale * 16.0).round() as i32,
+        )
+    };
+    imgproc::line(img, p(a), p(b), color, thickness, imgproc::LINE_AA, 4)
+}
+
+/// A colour picture of the frame, scaled by `scale`, with each part's outline (green accepted,
+/// red rejected), the matched template's outline in blue, line features in yellow, the
+/// orientation axis thick, and a label.
+pub fn draw(
+    frame: GrayView<'_>,
+    est: &FrameEstimate,
+    estimator: &Estimator,
+    scale: f64,
+) -> opencv::Result<Mat> {
+    let src = frame
+        .as_mat()
+        .map_err(|e| opencv::Error::new(core::StsError, e.to_string()))?;
+    let mut small = Mat::default();
+    let size = core::Size::new(
+        ((frame.width() as f64) * scale).round().max(1.0) as i32,
+        ((frame.height() as f64) * scale).round().max(1.0) as i32,
+    );
+    imgproc::resize(&src, &mut small, size, 0.0, 0.0, imgproc::INTER_AREA)?;
+    let mut img = Mat::default();
+    imgproc::cvt_color(&small, &mut img, imgproc::COLOR_GRAY2BGR, 0)?;
+    let templates: Vec<_> = estimator.templates().collect();
+    let thick = ((2.0 * scale).round() as i32).max(1);
+    for p in &est.parts {
+        let color = bgr(if p.accepted { GREEN } else { RED });
+        if let Some((i, pose)) = p.matched
+            && let Some(t) = templates.get(i)
+        {
+            let mapped: Vec<Pt> = t.outline.iter().map(|&q| pose.apply(q)).collect();
+            poly(&mut img, &mapped, scale, bgr(BLUE), 1)?;
+        }
+        poly(&mut img, &p.outline, scale, color, thick)?;
+        for s in &p.segments {
+            line(&mut img, s.a, s.b, scale, bgr(YELLOW), 1)?;
+        }
+        if let Some(ax) = p.axis {
+            line(&mut img, ax.a, ax.b, scale, bgr(YELLOW), 3 * thick)?;
+        }
+        let label = if p.accepted {
+            format!(
+                "{} {} {:.1} deg c={:.2}",
+                p.type_name.as_deref().unwrap_or("?"),
+                p.face.map(|f| f.as_str()).unwrap_or("?"),
+                p.angle_deg,
+                p.confidence
+            )
+        } else {
+            format!(
+                "REJECT {}{}",
+                p.reason,
+                p.type_name
+                    .as_deref()
+                    .map(|t| format!(" ({t})"))
+                    .unwrap_or_default()
+            )
+        };
+        let at = Point::new((p.x * scale) as i32 - 60, (p.y * scale) as i32);
+        let fs = (0.5 * scale * 4.0).clamp(0.4, 1.5);
+        imgproc::put_text(
+            &mut img,
+            &label,
+            at,
+            imgproc::FONT_HERSHEY_SIMPLEX,
+            fs,
+            Scalar::new(0.0, 0.0, 0.0, 0.0),
+            3 * thick,
+            imgproc::LINE_AA,
+            false,
+        )?;
+        imgproc::put_text(
+            &mut img,
+            &label,
+            at,
+            imgproc::FONT_HERSHEY_SIMPLEX,
+            fs,
+            color,
+            thick,
+            imgproc::LINE_AA,
+            false,
+        )?;
+    }
+    Ok(img)
+}

@@ -1,0 +1,89 @@
+//! Ground truth (`truth.jsonl`) and estimate (`estimate --json`) line formats.
+//!
+//! Other tools read and write these; field names and meanings are fixed by the vision-core issue.
+
+use serde::{Deserialize, Serialize};
+
+/// One image's ground truth. Unknown fields (renderer metadata) are kept out of the way.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TruthRecord {
+    /// Path relative to the truth file's directory.
+    pub image: String,
+    pub condition: String,
+    pub noise_sigma: f64,
+    pub parts: Vec<TruthPart>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TruthPart {
+    #[serde(rename = "type")]
+    pub type_name: String,
+    pub face: String,
+    pub angle_deg: f64,
+    pub x_px: f64,
+    pub y_px: f64,
+}
+
+/// One image's estimate, as `estimate --json` prints it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EstimateRecord {
+    pub image: String,
+    pub elapsed_ms: f64,
+    pub parts: Vec<EstimatePart>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EstimatePart {
+    #[serde(rename = "type")]
+    pub type_name: Option<String>,
+    pub type_id: u16,
+    pub face: Option<String>,
+    pub angle_deg: f64,
+    pub x_px: f64,
+    pub y_px: f64,
+    pub confidence: f64,
+    pub accepted: bool,
+    pub reason: String,
+}
+
+impl EstimatePart {
+    pub fn from_estimate(p: &crate::vision::PartEstimate) -> Self {
+        let r3 = |v: f64| (v * 1000.0).round() / 1000.0;
+        Self {
+            type_name: p.type_name.clone(),
+            type_id: p.type_id,
+            face: p.face.map(|f| f.as_str().to_string()),
+            angle_deg: (p.angle_deg * 10000.0).round() / 10000.0,
+            x_px: r3(p.x),
+            y_px: r3(p.y),
+            confidence: r3(p.confidence),
+            accepted: p.accepted,
+            reason: p.reason.as_str().to_string(),
+        }
+    }
+}
+
+/// Parses a truth file's text; errors name the line.
+pub fn parse_truth(text: &str, origin: &str) -> Result<Vec<TruthRecord>, String> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| {
+            serde_json::from_str::<TruthRecord>(l).map_err(|e| format!("{origin}:{}: {e}", i + 1))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_the_shared_format_with_extra_fields() {
+        let line = r#"{"image": "images/a.png", "condition": "clean", "noise_sigma": 0.79, "parts": [{"type": "A", "face": "down", "angle_deg": 6.28, "x_px": 2054.182, "y_px": 1212.841, "visible_fraction": 1.0}], "width": 2592}"#;
+        let t = parse_truth(line, "t").unwrap();
+        assert_eq!(t[0].parts[0].type_name, "A");
+        let e = parse_truth("{}\n", "truth.jsonl").unwrap_err();
+        assert!(e.starts_with("truth.jsonl:1:"), "{e}");
+    }
+}

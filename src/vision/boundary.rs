@@ -1,0 +1,383 @@
+//! Stage 1b: sub-pixel outline on the full-resolution frame.
+//!
+//! The coarse outline is good to a few pixels; the pose and the centroid need a tenth of one. For
+//! every point of the outline the frame is sampled along the outward normal, the profile is
+//! smoothed (along the normal by a Gaussian, across by averaging neighbouring profiles), and the
+//! edge is where the profile, scanned inwards from the belt, first rises clearly above the belt's
+//! level: first because a part's own features (rims, grooves, ribs) make strong edges just inside
+//! its silhouette, and a level close to the belt's rather than a gradient peak because rounded and
+//! dark-rimmed parts shade gradually towards their silhouette, where a peak wanders with texture
+//! and lighting.
+
+use super::frame::GrayView;
+use super::geometry::{Pt, outward_normals, resample_closed, smooth_closed};
+
+/// Parameters of the refinement.
+#[derive(Debug, Clone)]
+pub struct RefineParams {
+    /// Spacing of the refined outline's points, frame pixels.
+    pub spacing: f64,
+    /// Half-length of the search along the normal, frame pixels.
+    pub search: f64,
+    /// Gaussian smoothing of each profile, frame pixels.
+    pub profile_sigma: f64,
+    /// Neighbouring profiles averaged on each side.
+    pub across: usize,
+    /// Least rise above the belt's level, as a fraction of the part's contrast, at which the
+    /// edge is placed (the frame's noise may push it higher).
+    pub level: f64,
+}
+
+/// Sample spacing along the normal, frame pixels (the profile is smoothed over more than this).
+const STEP: f64 = 1.0;
+
+/// A refined outline.
+#[derive(Debug, Clone)]
+pub struct Refined {
+    pub outline: Vec<Pt>,
+    /// Typical gray-level step across the outline (median over its points).
+    pub contrast: f64,
+}
+
+/// Refines a closed coarse outline to sub-pixel edge positions.
+pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) -> Refined {
+    let pts = resample_closed(coarse, p.spacing);
+    let n = pts.len();
+    if n < 8 {
+        return Refined {
+            outline: pts,
+            contrast: 0.0,
+        };
+    }
+    // Normals from a smoothed copy: the decimated outline is a staircase.
+    let smooth = smooth_closed(&pts, 3);
+    let normals = outward_normals(&smooth, 3);
+    let half = (p.search / STEP).round() as isize;
+    let k = (2 * half + 1) as usize;
+    let ts: Vec<f64> = (-half..=half).map(|i| i as f64 * STEP).collect();
+
+    // Raw profiles: one bilinear remap of all sample positions (vectorised in OpenCV).
+    let raw = match sample(frame, &smooth, &normals, &ts) {
+        Ok(v) => v,
+        Err(_) => {
+            return Refined {
+                outline: pts,
+                contrast: 0.0,
+            };
+        }
+    };
+    // Gaussian kernel along the profile.
+    let sig = (p.profile_sigma / STEP).max(0.5);
+    let kr = (3.0 * sig).ceil() as isize;
+    let kernel: Vec<f64> = (-kr..=kr)
+        .map(|i| (-(i as f64).powi(2) / (2.0 * sig * sig)).exp())
+        .collect();
+    let ksum: f64 = kernel.iter().sum();
+
+    // Smoothed profiles: averaged across neighbours (a running sum around the closed outline),
+    // then Gaussian along the normal.
+    let m = p.across.min(n / 4);
+    let norm = 1.0 / (ksum * (2 * m + 1) as f64);
+    let mut acc = vec![0.0f64; k];
+    for d in 0..=2 * m {
+        let ii = (n + d - m) % n;
+        for j in 0..k {
+            acc[j] += raw[ii * k + j];
+        }
+    }
+    let mut sm = vec![0.0f64; n * k];
+    for i in 0..n {
+        for j in 0..k {
+            let mut s = 0.0;
+            for (q, w) in kernel.iter().enumerate() {
+                let jj = (j as isize + q as isize - kr).clamp(0, k as isize - 1) as usize;
+                s += w * acc[jj];
+            }
+            sm[i * k + j] = s * norm;
+        }
+        // Slide the window: drop profile i - m, add profile i + m + 1.
+        let out = (i + n - m) % n;
+        let inn = (i + m + 1) % n;
+        for j in 0..k {
+            acc[j] += raw[inn * k + j] - raw[out * k + j];
+        }
+    }
+    // The belt's level: the median at the outer ends of the profiles. The part's: the median of
+    // each profile's extreme on its inner half (a part's margin can be a thin bright rim beside a
+    // dark groove, so the inner ends alone may read as dark as the belt). Extreme = brightest for
+    // parts brighter than the belt, darkest otherwise.
+    let ends = (2.0 / STEP) as usize + 1;
+    let mut outer: Vec<f64> = (0..n)
+        .flat_map(|i| sm[(i + 1) * k - ends..(i + 1) * k].to_vec())
+        .collect();
+    let l_belt = median(&mut outer);
+    let mut hi: Vec<f64> = (0..n)
+        .map(|i| {
+            sm[i * k..i * k + half as usize]
+                .iter()
+                .cloned()
+                .fold(f64::MIN, f64::max)
+        })
+        .collect();
+    let mut lo: Vec<f64> = (0..n)
+        .map(|i| {
+            sm[i * k..i * k + half as usize]
+                .iter()
+                .cloned()
+                .fold(f64::MAX, f64::min)
+        })
+        .collect();
+    let (bright, dark) = (median(&mut hi), median(&mut lo));
+    let l_part = if bright - l_belt >= l_belt - dark {
+        bright
+    } else {
+        dark
+    };
+    let brighter = l_part >= l_belt;
+    let sign = if brighter { 1.0 } else { -1.0 };
+    // Smoothing divides white noise by sqrt(profiles averaged) and by sqrt(2 sqrt(pi) sigma) along
+    // the profile; the level keeps four of those sigmas clear of the belt so noise rarely
+    // crosses it, and at least `level` of the part's contrast.
+    let profile_noise =
+        noise / ((2 * m + 1) as f64).sqrt() / (2.0 * std::f64::consts::PI.sqrt() * sig).sqrt();
+    let rise = (p.level * (l_part - l_belt).abs()).max(4.0 * profile_noise);
+    // Each profile measures its own belt (clouds, shading, the part's own shadow), held within
+    // a few spreads of the typical belt so that a neighbour or a speck cannot drag it.
+    let mut dev: Vec<f64> = outer.iter().map(|v| (v - l_belt).abs()).collect();
+    let spread = 1.4826 * median(&mut dev) + 1.0;
+    // The edge is the outermost crossing: stable on the soft shading ramps of rounded parts,
+    // where a gradient peak wanders, and at the true edge of a sharp step.
+    let mut offsets = vec![f64::NAN; n];
+    for i in 0..n {
+        let prof = &sm[i * k..(i + 1) * k];
+        let belt = (prof[k - ends..].iter().sum::<f64>() / ends as f64)
+            .clamp(l_belt - 3.0 * spread, l_belt + 3.0 * spread);
+        let level = belt + sign * rise;
+        let is_part = |v: f64| if brighter { v >= level } else { v <= level };
+        if let Some(j) = (0..k - 1).rev().find(|&j| is_part(prof[j])) {
+            if j + 1 < k && !is_part(prof[j + 1]) {
+                let (a, b) = (prof[j], prof[j + 1]);
+                let frac = if (b - a).abs() > 1e-9 {
+                    ((level - a) / (b - a)).clamp(0.0, 1.0)
+                } else {
+                    0.5
+                };
+                offsets[i] = ts[j] + frac * STEP;
+            }
+        }
+    }
+    let contrast = (l_part - l_belt).abs();
+    clean_offsets(&mut offsets);
+    Refined {
+        outline: (0..n)
+            .map(|i| smooth[i] + normals[i].scale(offsets[i]))
+            .collect(),
+        contrast,
+    }
+}
+
+/// Samples the frame at `base[i] + normal[i] * t` for every t, row i of an n x k array.
+fn sample(
+    frame: GrayView<'_>,
+    base: &[Pt],
+    normals: &[Pt],
+    ts: &[f64],
+) -> opencv::Result<Vec<f64>> {
+    use opencv::core::{self, Mat, Scalar};
+    use opencv::prelude::*;
+    let (n, k) = (base.len(), ts.len());
+    let mut mx = Vec::with_capacity(n * k);
+    let mut my = Vec::with_capacity(n * k);
+    for (b, nn) in base.iter().zip(normals) {
+        for t in ts {
+            mx.push((b.x + nn.x * t) as f32);
+            my.push((b.y + nn.y * t) as f32);
+        }
+    }
+    let map_x = Mat::new_rows_cols_with_data(n as i32, k as i32, &mx)?;
+    let map_y = Mat::new_rows_cols_with_data(n as i32, k as i32, &my)?;
+    let src = frame
+        .as_mat()
+        .map_err(|e| opencv::Error::new(core::StsError, e.to_string()))?;
+    let mut out = Mat::default();
+    opencv::imgproc::remap(
+        &src,
+        &mut out,
+        &map_x,
+        &map_y,
+        opencv::imgproc::INTER_LINEAR,
+        core::BORDER_REPLICATE,
+        Scalar::all(0.0),
+    )?;
+    // The 8-bit result is rounded to whole gray levels (sigma 0.3), negligible beside the
+    // averaging that follows and far cheaper than converting the frame to float.
+    let mut outf = Mat::default();
+    out.convert_to(&mut outf, core::CV_64F, 1.0, 0.0)?;
+    Ok(outf.data_typed::<f64>()?.to_vec())
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mid = v.len() / 2;
+    *v.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// Replaces missing and isolated outlying offsets by the local median: a speck of dirt next to
+/// the part or a noise spike must not bend the outline.
+fn clean_offsets(off: &mut [f64]) {
+    let n = off.len();
+    let src = off.to_vec();
+    let mut win = Vec::with_capacity(7);
+    for i in 0..n {
+        win.clear();
+        for d in 0..7 {
+            let v = src[(i + n + d - 3) % n];
+            if v.is_finite() {
+                win.push(v);
+            }
+        }
+        if win.is_empty() {
+            off[i] = 0.0;
+            continue;
+        }
+        win.sort_by(f64::total_cmp);
+        let med = win[win.len() / 2];
+        if !src[i].is_finite() || (src[i] - med).abs() > 2.0 {
+            off[i] = med;
+        }
+    }
+}
+
+/// Robust standard deviation of the frame's pixel noise, from horizontal differences of every
+/// sixteenth row away from the given regions (if any). The belt's texture is smooth at one pixel,
+/// so what remains is sensor noise.
+pub fn noise_sigma(frame: GrayView<'_>, exclude: &[(Pt, Pt)]) -> f64 {
+    let mut hist = [0u32; 256];
+    let w = frame.width();
+    let mut spans: Vec<(usize, usize)> = Vec::new();
+    for y in (0..frame.height()).step_by(16) {
+        let row = &frame.data()[y * w..(y + 1) * w];
+        let yf = y as f64;
+        // The row's stretches between excluded boxes.
+        spans.clear();
+        spans.extend(
+            exclude
+                .iter()
+                .filter(|(lo, hi)| yf >= lo.y && yf <= hi.y)
+                .map(|(lo, hi)| (lo.x.max(0.0) as usize, (hi.x.max(0.0) as usize + 1).min(w))),
+        );
+        spans.sort_unstable();
+        let mut x = 0;
+        for &(a, b) in spans.iter().chain(std::iter::once(&(w, w))) {
+            if a > x {
+                for pair in row[x..a].chunks_exact(2) {
+                    hist[(pair[1] as i32 - pair[0] as i32).unsigned_abs() as usize] += 1;
+                }
+            }
+            x = x.max(b);
+        }
+    }
+    let count: u32 = hist.iter().sum();
+    if count == 0 {
+        return 0.0;
+    }
+    // Median absolute difference -> sigma of a Gaussian; a difference has sqrt(2) x the noise.
+    let mut acc = 0u32;
+    let mut med = 0.0;
+    for (v, c) in hist.iter().enumerate() {
+        acc += c;
+        if acc * 2 >= count {
+            // Interpolate within the bin so small noise levels are not stuck at integers.
+            let before = acc - c;
+            let frac = if *c > 0 {
+                (count as f64 / 2.0 - before as f64) / *c as f64
+            } else {
+                0.5
+            };
+            med = v as f64 - 0.5 + frac;
+            break;
+        }
+    }
+    med.max(0.0) * 1.4826 / std::f64::consts::SQRT_2
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vision::frame::GrayImage;
+    use crate::vision::geometry::area_centroid;
+
+    /// A bright disc of radius `r` at (cx, cy), anti-aliased by 8 x 8 supersampling.
+    fn disc(w: usize, h: usize, cx: f64, cy: f64, r: f64) -> GrayImage {
+        let mut img = GrayImage::new(w, h, 40);
+        for y in 0..h {
+            for x in 0..w {
+                let mut inside = 0;
+                for sy in 0..8 {
+                    for sx in 0..8 {
+                        let px = x as f64 - 0.5 + (sx as f64 + 0.5) / 8.0;
+                        let py = y as f64 - 0.5 + (sy as f64 + 0.5) / 8.0;
+                        if (px - cx).hypot(py - cy) <= r {
+                            inside += 1;
+                        }
+                    }
+                }
+                img.data[y * w + x] = (40.0 + 160.0 * inside as f64 / 64.0).round() as u8;
+            }
+        }
+        img
+    }
+
+    #[test]
+    fn refines_a_rough_circle_to_sub_pixel() {
+        let img = disc(200, 200, 97.3, 101.8, 60.0);
+        // A coarse outline 3 px too large and slightly off centre.
+        let coarse: Vec<Pt> = (0..64)
+            .map(|i| {
+                let a = i as f64 / 64.0 * std::f64::consts::TAU;
+                Pt::new(98.0 + 63.0 * a.cos(), 101.0 + 63.0 * a.sin())
+            })
+            .collect();
+        let p = RefineParams {
+            spacing: 2.0,
+            search: 8.0,
+            profile_sigma: 1.0,
+            across: 2,
+            level: 0.5,
+        };
+        let out = refine(img.view().unwrap(), &coarse, 0.0, &p);
+        assert!(
+            (out.contrast - 160.0).abs() < 40.0,
+            "contrast {}",
+            out.contrast
+        );
+        let (area, c) = area_centroid(&out.outline);
+        assert!(
+            (c.x - 97.3).abs() < 0.05 && (c.y - 101.8).abs() < 0.05,
+            "centroid {c:?}"
+        );
+        let r = (area.abs() / std::f64::consts::PI).sqrt();
+        assert!((r - 60.0).abs() < 0.2, "radius {r}");
+    }
+
+    #[test]
+    fn noise_estimate_tracks_added_noise() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        for sigma in [5.0, 20.0] {
+            let nd = Normal::new(0.0, sigma).unwrap();
+            let mut img = GrayImage::new(400, 300, 0);
+            for v in img.data.iter_mut() {
+                *v = (100.0 + nd.sample(&mut rng)).round().clamp(0.0, 255.0) as u8;
+            }
+            let est = noise_sigma(img.view().unwrap(), &[]);
+            assert!(
+                (est - sigma).abs() < 0.1 * sigma,
+                "sigma {sigma} estimated {est}"
+            );
+        }
+    }
+}

@@ -1,0 +1,320 @@
+//! Plane geometry on sub-pixel outlines.
+//!
+//! Coordinates are image pixels with pixel centres on integers, x to the right and y down. Angles
+//! follow the product's convention: positive is counter-clockwise *as displayed*, which in y-down
+//! coordinates is the matrix `[[cos, sin], [-sin, cos]]` (OpenCV's `getRotationMatrix2D`).
+
+use std::f64::consts::PI;
+
+/// A point or vector in pixel coordinates.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Pt {
+    pub x: f64,
+    pub y: f64,
+}
+
+impl Pt {
+    pub const fn new(x: f64, y: f64) -> Self {
+        Self { x, y }
+    }
+    pub fn norm(self) -> f64 {
+        (self.x * self.x + self.y * self.y).sqrt()
+    }
+    pub fn dot(self, o: Pt) -> f64 {
+        self.x * o.x + self.y * o.y
+    }
+    pub fn cross(self, o: Pt) -> f64 {
+        self.x * o.y - self.y * o.x
+    }
+    pub fn scale(self, k: f64) -> Pt {
+        Pt::new(self.x * k, self.y * k)
+    }
+    /// Direction of the vector as displayed: 0 along +x, counter-clockwise positive.
+    pub fn display_angle(self) -> f64 {
+        (-self.y).atan2(self.x)
+    }
+}
+
+impl std::ops::Add for Pt {
+    type Output = Pt;
+    fn add(self, o: Pt) -> Pt {
+        Pt::new(self.x + o.x, self.y + o.y)
+    }
+}
+
+impl std::ops::Sub for Pt {
+    type Output = Pt;
+    fn sub(self, o: Pt) -> Pt {
+        Pt::new(self.x - o.x, self.y - o.y)
+    }
+}
+
+/// Rotates a vector counter-clockwise as displayed.
+pub fn rotate_display(v: Pt, angle_rad: f64) -> Pt {
+    let (s, c) = angle_rad.sin_cos();
+    Pt::new(c * v.x + s * v.y, -s * v.x + c * v.y)
+}
+
+/// Wraps degrees into [0, 360).
+pub fn wrap_deg(a: f64) -> f64 {
+    let w = a.rem_euclid(360.0);
+    if w >= 360.0 { 0.0 } else { w }
+}
+
+/// Signed smallest difference a - b in degrees, in (-180, 180].
+pub fn angle_diff_deg(a: f64, b: f64) -> f64 {
+    let d = (a - b).rem_euclid(360.0);
+    if d > 180.0 { d - 360.0 } else { d }
+}
+
+/// A similarity transform from template pixels to frame pixels:
+/// `p = to + scale * R(angle) * (q - from)`, R counter-clockwise as displayed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Similarity {
+    pub from: Pt,
+    pub to: Pt,
+    pub angle_rad: f64,
+    pub scale: f64,
+}
+
+impl Similarity {
+    pub fn apply(&self, q: Pt) -> Pt {
+        self.to + rotate_display(q - self.from, self.angle_rad).scale(self.scale)
+    }
+    pub fn invert(&self, p: Pt) -> Pt {
+        self.from + rotate_display(p - self.to, -self.angle_rad).scale(1.0 / self.scale)
+    }
+    pub fn angle_deg(&self) -> f64 {
+        wrap_deg(self.angle_rad.to_degrees())
+    }
+}
+
+/// Signed area (positive when the vertices run counter-clockwise in y-down coordinates, i.e.
+/// clockwise as displayed) and area centroid of a closed polygon.
+pub fn area_centroid(poly: &[Pt]) -> (f64, Pt) {
+    let n = poly.len();
+    if n < 3 {
+        return (0.0, centroid_of_points(poly));
+    }
+    // Shift to the first vertex to keep the cross products well conditioned.
+    let o = poly[0];
+    let (mut a2, mut cx, mut cy) = (0.0, 0.0, 0.0);
+    for i in 0..n {
+        let p = poly[i] - o;
+        let q = poly[(i + 1) % n] - o;
+        let c = p.cross(q);
+        a2 += c;
+        cx += (p.x + q.x) * c;
+        cy += (p.y + q.y) * c;
+    }
+    if a2.abs() < 1e-12 {
+        return (0.0, centroid_of_points(poly));
+    }
+    (
+        a2 / 2.0,
+        Pt::new(o.x + cx / (3.0 * a2), o.y + cy / (3.0 * a2)),
+    )
+}
+
+fn centroid_of_points(pts: &[Pt]) -> Pt {
+    if pts.is_empty() {
+        return Pt::default();
+    }
+    let n = pts.len() as f64;
+    let s = pts.iter().fold(Pt::default(), |a, &p| a + p);
+    s.scale(1.0 / n)
+}
+
+/// Perimeter of a closed polygon.
+pub fn perimeter(poly: &[Pt]) -> f64 {
+    let n = poly.len();
+    (0..n).map(|i| (poly[(i + 1) % n] - poly[i]).norm()).sum()
+}
+
+/// Resamples a closed polygon at (nearly) uniform arc-length spacing.
+pub fn resample_closed(poly: &[Pt], spacing: f64) -> Vec<Pt> {
+    let n = poly.len();
+    if n < 2 || spacing <= 0.0 {
+        return poly.to_vec();
+    }
+    let total = perimeter(poly);
+    let count = ((total / spacing).round() as usize).max(3);
+    let step = total / count as f64;
+    let mut out = Vec::with_capacity(count);
+    let mut seg = 0usize;
+    let mut seg_start = 0.0;
+    let mut seg_len = (poly[1 % n] - poly[0]).norm();
+    for k in 0..count {
+        let s = k as f64 * step;
+        while s > seg_start + seg_len && seg < n - 1 {
+            seg_start += seg_len;
+            seg += 1;
+            seg_len = (poly[(seg + 1) % n] - poly[seg]).norm();
+        }
+        let a = poly[seg];
+        let b = poly[(seg + 1) % n];
+        let t = if seg_len > 0.0 {
+            ((s - seg_start) / seg_len).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        out.push(a + (b - a).scale(t));
+    }
+    out
+}
+
+/// Circular moving average of a closed polyline (`half` samples each side).
+pub fn smooth_closed(poly: &[Pt], half: usize) -> Vec<Pt> {
+    let n = poly.len();
+    if n == 0 || half == 0 {
+        return poly.to_vec();
+    }
+    let w = (2 * half + 1) as f64;
+    (0..n)
+        .map(|i| {
+            let mut s = Pt::default();
+            for k in 0..=2 * half {
+                s = s + poly[(i + n + k - half % n) % n];
+            }
+            s.scale(1.0 / w)
+        })
+        .collect()
+}
+
+/// Unit outward normals of a closed polygon (outward for either winding).
+pub fn outward_normals(poly: &[Pt], half: usize) -> Vec<Pt> {
+    let n = poly.len();
+    let (area, _) = area_centroid(poly);
+    // For positive signed area (clockwise as displayed) the outward side of tangent t is (t.y, -t.x)
+    // rotated; pick the sign so that normals point away from the interior.
+    let sign = if area > 0.0 { 1.0 } else { -1.0 };
+    (0..n)
+        .map(|i| {
+            let a = poly[(i + n - half % n) % n];
+            let b = poly[(i + half) % n];
+            let t = b - a;
+            let len = t.norm().max(1e-12);
+            Pt::new(t.y / len * sign, -t.x / len * sign)
+        })
+        .collect()
+}
+
+/// Distance from `p` to segment `a`-`b`, and the parameter of the closest point.
+pub fn point_segment(p: Pt, a: Pt, b: Pt) -> (f64, f64) {
+    let ab = b - a;
+    let l2 = ab.dot(ab);
+    let t = if l2 > 0.0 {
+        ((p - a).dot(ab) / l2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    ((a + ab.scale(t) - p).norm(), t)
+}
+
+/// Even-odd point-in-polygon test.
+pub fn contains(poly: &[Pt], p: Pt) -> bool {
+    let n = poly.len();
+    let mut inside = false;
+    let mut j = n.wrapping_sub(1);
+    for i in 0..n {
+        let (a, b) = (poly[i], poly[j]);
+        if (a.y > p.y) != (b.y > p.y) {
+            let x = a.x + (p.y - a.y) / (b.y - a.y) * (b.x - a.x);
+            if p.x < x {
+                inside = !inside;
+            }
+        }
+        j = i;
+    }
+    inside
+}
+
+/// Axis-aligned bounding box (min, max).
+pub fn bounds(poly: &[Pt]) -> (Pt, Pt) {
+    let mut lo = Pt::new(f64::INFINITY, f64::INFINITY);
+    let mut hi = Pt::new(f64::NEG_INFINITY, f64::NEG_INFINITY);
+    for p in poly {
+        lo.x = lo.x.min(p.x);
+        lo.y = lo.y.min(p.y);
+        hi.x = hi.x.max(p.x);
+        hi.y = hi.y.max(p.y);
+    }
+    (lo, hi)
+}
+
+/// Undirected angle between two line directions, in [0, pi/2].
+pub fn line_angle_between(a: f64, b: f64) -> f64 {
+    let d = (a - b).rem_euclid(PI);
+    d.min(PI - d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn square(side: f64) -> Vec<Pt> {
+        vec![
+            Pt::new(0.0, 0.0),
+            Pt::new(side, 0.0),
+            Pt::new(side, side),
+            Pt::new(0.0, side),
+        ]
+    }
+
+    #[test]
+    fn area_and_centroid_of_a_square() {
+        let (a, c) = area_centroid(&square(4.0));
+        assert!((a.abs() - 16.0).abs() < 1e-12);
+        assert!((c.x - 2.0).abs() < 1e-12 && (c.y - 2.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn normals_point_outward_for_both_windings() {
+        let sq = square(10.0);
+        let mut rev = sq.clone();
+        rev.reverse();
+        for poly in [resample_closed(&sq, 1.0), resample_closed(&rev, 1.0)] {
+            let (_, c) = area_centroid(&poly);
+            let ns = outward_normals(&poly, 1);
+            for (p, n) in poly.iter().zip(&ns) {
+                // Skip the corners, where the normal is diagonal by construction.
+                let probe = *p + n.scale(0.5);
+                let inward = *p - n.scale(0.5);
+                if (p.x - 5.0).abs() < 4.0 || (p.y - 5.0).abs() < 4.0 {
+                    assert!((probe - c).norm() > (inward - c).norm());
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn similarity_round_trips_and_rotates_counter_clockwise_as_displayed() {
+        let t = Similarity {
+            from: Pt::new(1.0, 2.0),
+            to: Pt::new(10.0, 20.0),
+            angle_rad: 0.5,
+            scale: 1.3,
+        };
+        let q = Pt::new(4.0, -3.0);
+        let back = t.invert(t.apply(q));
+        assert!((back - q).norm() < 1e-9);
+        // +x rotated by 90 degrees CCW as displayed points up the screen, i.e. -y.
+        let v = rotate_display(Pt::new(1.0, 0.0), std::f64::consts::FRAC_PI_2);
+        assert!((v - Pt::new(0.0, -1.0)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn resampling_keeps_the_perimeter() {
+        let sq = square(10.0);
+        let r = resample_closed(&sq, 0.7);
+        assert!((perimeter(&r) - 40.0).abs() < 0.5);
+        assert!(contains(&sq, Pt::new(5.0, 5.0)) && !contains(&sq, Pt::new(11.0, 5.0)));
+    }
+
+    #[test]
+    fn angle_helpers_wrap() {
+        assert_eq!(wrap_deg(-10.0), 350.0);
+        assert!((angle_diff_deg(1.0, 359.0) - 2.0).abs() < 1e-12);
+        assert!((angle_diff_deg(359.0, 1.0) + 2.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,705 @@
+//! The vision core: frame in, part estimates out.
+//!
+//! Pure and synchronous: no files, sockets, clocks other than stage timers, or threads. The
+//! pipeline per frame (see ARCHITECTURE.md for the data flow):
+//!
+//! 1. [`detect`]: decimate, blur, Canny with automatic hysteresis, external contours, closing;
+//!    every region above the minimum area is a part candidate ("dispersed parts").
+//! 2. [`boundary`]: the outline refined to sub-pixel on the full frame.
+//! 3. [`lines`]: LSD segments in the part, the orientation axis, the LFI descriptor.
+//! 4. [`signal`] + [`correlate`]: log-polar r(phi) and FFT circular cross-correlation against every
+//!    template of every type and face: type, face, angle and scale in one step.
+//! 5. [`register`]: the best candidates refined by point-to-line ICP, giving the final pose and
+//!    how well each template explains the outline.
+//! 6. Confidence (adaptive tolerance over the line features) and the accept/reject decision.
+
+pub mod boundary;
+pub mod correlate;
+pub mod detect;
+pub mod frame;
+pub mod geometry;
+pub mod lines;
+pub mod register;
+pub mod signal;
+pub mod template;
+
+use std::time::Instant;
+
+pub use frame::{FrameError, GrayImage, GrayView};
+pub use geometry::Pt;
+pub use lines::{LineDetector, LineFeature, Segment};
+pub use template::{Library, Template, TemplateError};
+
+use boundary::RefineParams;
+use detect::DetectParams;
+pub use geometry::Similarity;
+use geometry::{area_centroid, bounds};
+
+/// Which side of the part faces the camera.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Face {
+    Up,
+    Down,
+}
+
+impl Face {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Face::Up => "up",
+            Face::Down => "down",
+        }
+    }
+    /// Register encoding: 1 up, 2 down (0 is "unknown").
+    pub fn code(self) -> u16 {
+        match self {
+            Face::Up => 1,
+            Face::Down => 2,
+        }
+    }
+}
+
+impl std::str::FromStr for Face {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "up" => Ok(Face::Up),
+            "down" => Ok(Face::Down),
+            other => Err(format!("face must be \"up\" or \"down\", not {other:?}")),
+        }
+    }
+}
+
+impl std::fmt::Display for Face {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Why a part was not accepted. The numeric codes are the register map's REASON values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Reason {
+    Ok,
+    NoPart,
+    UnknownType,
+    LowConfidence,
+    Ambiguous,
+    Touching,
+    WrongType,
+    FrameError,
+    AtBorder,
+}
+
+impl Reason {
+    pub const ALL: [Reason; 9] = [
+        Reason::Ok,
+        Reason::NoPart,
+        Reason::UnknownType,
+        Reason::LowConfidence,
+        Reason::Ambiguous,
+        Reason::Touching,
+        Reason::WrongType,
+        Reason::FrameError,
+        Reason::AtBorder,
+    ];
+    pub fn code(self) -> u16 {
+        self as u16
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Reason::Ok => "ok",
+            Reason::NoPart => "no part",
+            Reason::UnknownType => "unknown type",
+            Reason::LowConfidence => "low confidence",
+            Reason::Ambiguous => "ambiguous",
+            Reason::Touching => "touching/overlapping",
+            Reason::WrongType => "wrong type",
+            Reason::FrameError => "frame error",
+            Reason::AtBorder => "at the image border",
+        }
+    }
+}
+
+impl std::fmt::Display for Reason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Tunables of the estimator. Defaults follow the method; the decision thresholds were set on
+/// the built-in simulator's scenes (see README, "Accuracy").
+#[derive(Debug, Clone)]
+pub struct Params {
+    /// Frame pixels per pixel of the decimated frame the coarse stages run on.
+    pub coarse_factor: usize,
+    pub blur_sigma: f64,
+    pub canny_low_ratio: f64,
+    /// Closing element diameter, decimated pixels.
+    pub closing: i32,
+    /// Minimum part area, frame pixels (None: a quarter of the smallest template's area).
+    pub min_area: Option<f64>,
+    /// Line segment detector for the line features.
+    pub line_detector: LineDetector,
+    /// Segments shorter than this fraction of the part's bounding-box diagonal are dropped.
+    pub min_segment_fraction: f64,
+    /// Edge level between the belt (0) and the part (1): low, so that the darker, rounded
+    /// margins of forged parts count as part, yet clear of the belt's texture and noise.
+    pub edge_level: f64,
+    /// Bins of the r(phi) signal.
+    pub signal_bins: usize,
+    /// Templates refined by ICP per part (the best by correlation distance).
+    pub candidates: usize,
+    /// Outline distance (template pixels) within which a point counts as fitting, at zero noise;
+    /// grows with the measured noise.
+    pub fit_tolerance: f64,
+    /// Tolerance growth with the template's size (fraction of its RMS radius).
+    pub fit_tolerance_rel: f64,
+    /// Minimum fit (fraction of outline explained, both ways) to name a type.
+    pub min_fit: f64,
+    /// A different type or face fitting within this margin of the best is a rival ...
+    pub ambiguity_margin: f64,
+    /// ... that makes the part ambiguous unless the best's confidence beats the rival's by this.
+    pub confidence_margin: f64,
+    /// Largest fraction of outline that may be foreign (extra) or unseen (missing).
+    pub max_foreign: f64,
+    /// Accepted scale range relative to the template.
+    pub scale_range: (f64, f64),
+    /// A region larger than this multiple of the largest template's area is several parts.
+    pub touching_area_ratio: f64,
+    /// Confidence: lambda = lambda0 (1 - alpha noise).
+    pub lambda0: f64,
+    pub alpha: f64,
+    /// Confidence at or above which a part is accepted.
+    pub accept_threshold: f64,
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Self {
+            coarse_factor: 4,
+            blur_sigma: 1.5,
+            canny_low_ratio: 0.4,
+            closing: 5,
+            min_area: None,
+            line_detector: LineDetector::Fld,
+            min_segment_fraction: 0.05,
+            edge_level: 0.1,
+            signal_bins: 1024,
+            candidates: 3,
+            fit_tolerance: 2.0,
+            fit_tolerance_rel: 0.015,
+            min_fit: 0.75,
+            ambiguity_margin: 0.1,
+            confidence_margin: 0.15,
+            max_foreign: 0.06,
+            scale_range: (0.85, 1.18),
+            touching_area_ratio: 1.3,
+            lambda0: 25.0,
+            alpha: 0.5,
+            accept_threshold: 0.5,
+        }
+    }
+}
+
+impl Params {
+    pub(crate) fn detect_params(&self, min_area: f64) -> DetectParams {
+        DetectParams {
+            factor: self.coarse_factor,
+            blur_sigma: self.blur_sigma,
+            canny_low_ratio: self.canny_low_ratio,
+            closing: self.closing,
+            min_area,
+        }
+    }
+    pub(crate) fn refine_params(&self, factor: usize) -> RefineParams {
+        // The closing leaves the coarse outline within about one decimated pixel of the edge.
+        RefineParams {
+            spacing: 2.5,
+            search: 3.0 * factor as f64 + 4.0,
+            profile_sigma: self.blur_sigma,
+            across: 2,
+            level: self.edge_level,
+        }
+    }
+}
+
+/// Wall time of each stage, milliseconds (summed over the frame's parts).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Timings {
+    pub detect: f64,
+    pub boundary: f64,
+    pub lines: f64,
+    pub correlate: f64,
+    pub register: f64,
+    pub confidence: f64,
+    pub total: f64,
+}
+
+/// The estimate for one part of a frame.
+#[derive(Debug, Clone)]
+pub struct PartEstimate {
+    /// Best-matching type; None when the part is not a known type (or several parts).
+    pub type_name: Option<String>,
+    /// 0 when `type_name` is None.
+    pub type_id: u16,
+    pub face: Option<Face>,
+    /// Rotation carrying the template (of that type and face) onto the part, degrees in [0, 360).
+    pub angle_deg: f64,
+    /// The template's origin in the frame (the part's centroid for centred templates), pixels.
+    pub x: f64,
+    pub y: f64,
+    /// Part size relative to its template.
+    pub scale: f64,
+    pub confidence: f64,
+    pub accepted: bool,
+    pub reason: Reason,
+    /// The numbers behind the decision, for logs and the operator.
+    pub detail: String,
+    /// Fraction of the outline explained by the template (the worse of both directions).
+    pub fit: f64,
+    /// Best template (index into [`Estimator::templates`]) and its pose, when one was registered.
+    pub matched: Option<(usize, Similarity)>,
+    pub outline: Vec<Pt>,
+    pub axis: Option<Segment>,
+    pub segments: Vec<Segment>,
+    pub descriptor: Vec<LineFeature>,
+}
+
+/// The estimate for one frame.
+#[derive(Debug, Clone)]
+pub struct FrameEstimate {
+    pub parts: Vec<PartEstimate>,
+    /// Robust standard deviation of the background's pixel noise, gray levels.
+    pub noise_sigma: f64,
+    pub timings: Timings,
+}
+
+/// Why an estimator cannot be built.
+#[derive(Debug, thiserror::Error)]
+pub enum EstimatorError {
+    #[error("the knowledge base has no templates; enroll at least one type and face")]
+    Empty,
+    #[error("parameter {name} = {value} is out of range ({expected})")]
+    Param {
+        name: &'static str,
+        value: String,
+        expected: &'static str,
+    },
+}
+
+/// Estimates part poses in frames against a fixed set of templates.
+#[derive(Debug, Clone)]
+pub struct Estimator {
+    lib: Library,
+    params: Params,
+    min_area: f64,
+    max_template_area: f64,
+}
+
+struct Candidate {
+    entry: usize,
+    reg: register::Registration,
+    corr_rms: f64,
+    tolerance: f64,
+}
+
+impl Estimator {
+    pub fn new(templates: &[Template], params: Params) -> Result<Self, EstimatorError> {
+        if templates.is_empty() {
+            return Err(EstimatorError::Empty);
+        }
+        let check = |ok: bool, name: &'static str, value: String, expected: &'static str| {
+            if ok {
+                Ok(())
+            } else {
+                Err(EstimatorError::Param {
+                    name,
+                    value,
+                    expected,
+                })
+            }
+        };
+        check(
+            (1..=8).contains(&params.coarse_factor),
+            "coarse_factor",
+            params.coarse_factor.to_string(),
+            "1..=8",
+        )?;
+        check(
+            params.blur_sigma > 0.0 && params.blur_sigma <= 10.0,
+            "blur_sigma",
+            params.blur_sigma.to_string(),
+            "0 < sigma <= 10",
+        )?;
+        check(
+            (0.0..=1.0).contains(&params.accept_threshold),
+            "accept_threshold",
+            params.accept_threshold.to_string(),
+            "0..=1",
+        )?;
+        check(
+            params.signal_bins >= 64,
+            "signal_bins",
+            params.signal_bins.to_string(),
+            ">= 64",
+        )?;
+        check(
+            params.candidates >= 1,
+            "candidates",
+            params.candidates.to_string(),
+            ">= 1",
+        )?;
+        let smallest = templates
+            .iter()
+            .map(|t| t.area)
+            .fold(f64::INFINITY, f64::min);
+        let largest = templates.iter().map(|t| t.area).fold(0.0, f64::max);
+        let min_area = params.min_area.unwrap_or(0.25 * smallest);
+        Ok(Self {
+            lib: Library::new(templates, params.signal_bins),
+            params,
+            min_area,
+            max_template_area: largest,
+        })
+    }
+
+    pub fn params(&self) -> &Params {
+        &self.params
+    }
+    pub fn templates(&self) -> impl Iterator<Item = &Template> {
+        self.lib.entries.iter().map(|e| &e.template)
+    }
+
+    /// Estimates every part in the frame.
+    pub fn estimate(&self, frame: GrayView<'_>) -> Result<FrameEstimate, FrameError> {
+        let t0 = Instant::now();
+        let mut tm = Timings::default();
+        // Pixel noise from the whole frame: the median of pixel differences is not moved by the
+        // few percent of pixels on part edges.
+        let noise = boundary::noise_sigma(frame, &[]);
+        let coarse = detect::detect(frame, &self.params.detect_params(self.min_area))?;
+        tm.detect = ms(t0);
+
+        let mut parts = Vec::with_capacity(coarse.blobs.len());
+        for blob in &coarse.blobs {
+            parts.push(self.estimate_part(frame, &coarse, blob, noise, &mut tm)?);
+        }
+        parts.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
+        tm.total = ms(t0);
+        Ok(FrameEstimate {
+            parts,
+            noise_sigma: noise,
+            timings: tm,
+        })
+    }
+
+    fn estimate_part(
+        &self,
+        frame: GrayView<'_>,
+        coarse: &detect::Coarse,
+        blob: &detect::Blob,
+        noise: f64,
+        tm: &mut Timings,
+    ) -> Result<PartEstimate, FrameError> {
+        let p = &self.params;
+        let (_, c0) = area_centroid(&blob.outline);
+        let mut est = PartEstimate {
+            type_name: None,
+            type_id: 0,
+            face: None,
+            angle_deg: 0.0,
+            x: c0.x,
+            y: c0.y,
+            scale: 1.0,
+            confidence: 0.0,
+            accepted: false,
+            reason: Reason::UnknownType,
+            detail: String::new(),
+            fit: 0.0,
+            matched: None,
+            outline: blob.outline.clone(),
+            axis: None,
+            segments: Vec::new(),
+            descriptor: Vec::new(),
+        };
+        let t = Instant::now();
+        let refined =
+            boundary::refine(frame, &blob.outline, noise, &p.refine_params(coarse.factor));
+        let outline = refined.outline;
+        let (area, centroid) = area_centroid(&outline);
+        let area = area.abs();
+        est.x = centroid.x;
+        est.y = centroid.y;
+        est.outline = outline.clone();
+        tm.boundary += ms(t);
+        // A part cut by the frame edge has an outline running along it (the coarse region of a
+        // whole part may reach the edge through the closing, so the refined outline decides).
+        let (lo, hi) = bounds(&outline);
+        let edge = 3.0;
+        if lo.x < edge
+            || lo.y < edge
+            || hi.x > frame.width() as f64 - 1.0 - edge
+            || hi.y > frame.height() as f64 - 1.0 - edge
+        {
+            est.reason = Reason::AtBorder;
+            est.detail = format!(
+                "outline reaches the frame border (x {:.1}..{:.1}, y {:.1}..{:.1})",
+                lo.x, hi.x, lo.y, hi.y
+            );
+            return Ok(est);
+        }
+        let max_scale2 = p.scale_range.1 * p.scale_range.1;
+        if area > p.touching_area_ratio * self.max_template_area * max_scale2 {
+            est.reason = Reason::Touching;
+            est.detail =
+                format!("region of {area:.0} px^2 is larger than any enrolled part could be");
+            return Ok(est);
+        }
+
+        let t = Instant::now();
+        let diag = (hi - lo).norm();
+        let segments = lines::part_segments(
+            p.line_detector,
+            &coarse.small,
+            &coarse.edges,
+            coarse.factor,
+            blob,
+            p.min_segment_fraction * diag,
+        )?;
+        let axis = lines::orientation_axis(&segments);
+        let theta = axis.map(|s| s.direction()).unwrap_or(0.0);
+        est.descriptor = lines::descriptor(&segments, centroid, theta);
+        est.axis = axis;
+        est.segments = segments;
+        tm.lines += ms(t);
+
+        let t = Instant::now();
+        let corr = &self.lib.correlator;
+        let signal = signal::log_radius_signal(&outline, centroid, corr.bins());
+        let spec = corr.spectrum(&signal);
+        let mut aligned: Vec<(usize, correlate::Alignment)> = self
+            .lib
+            .entries
+            .iter()
+            .enumerate()
+            .map(|(i, e)| (i, corr.align(&spec, &e.spectrum)))
+            .collect();
+        aligned.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms));
+        tm.correlate += ms(t);
+
+        let t = Instant::now();
+        // The closest template by correlation is registered on every point; runners-up whose
+        // correlation distance is not far off (within 3x + 0.02) on a quarter of them, enough to
+        // see whether they rival it. The others cannot: their outline differs everywhere.
+        let best_rms = aligned[0].1.rms;
+        let mut cands: Vec<Candidate> = aligned
+            .iter()
+            .take(p.candidates)
+            .enumerate()
+            .filter(|(rank, (_, al))| *rank == 0 || al.rms <= 3.0 * best_rms + 0.02)
+            .map(|(rank, &(i, al))| {
+                let e = &self.lib.entries[i];
+                let init = Similarity {
+                    from: e.template.centroid,
+                    to: centroid,
+                    angle_rad: (al.shift / corr.bins() as f64) * std::f64::consts::TAU,
+                    scale: al.scale,
+                };
+                // Outlines of rounded parts shift with the light by a few pixels; noise adds jitter.
+                let tolerance =
+                    p.fit_tolerance + p.fit_tolerance_rel * e.template.rms_radius() + noise / 15.0;
+                let stride = if rank == 0 { 1 } else { 4 };
+                Candidate {
+                    entry: i,
+                    reg: register::register(&outline, &e.index, init, tolerance, stride),
+                    corr_rms: al.rms,
+                    tolerance,
+                }
+            })
+            .collect();
+        // Should a runner-up beat the first, register it fully too: its pose is the one reported.
+        if let Some(k) =
+            (1..cands.len()).max_by(|&x, &y| cands[x].reg.fit().total_cmp(&cands[y].reg.fit()))
+            && cands[k].reg.fit() > cands[0].reg.fit()
+        {
+            let e = &self.lib.entries[cands[k].entry];
+            cands[k].reg =
+                register::register(&outline, &e.index, cands[k].reg.pose, cands[k].tolerance, 1);
+        }
+        cands.sort_by(|a, b| {
+            b.reg
+                .fit()
+                .total_cmp(&a.reg.fit())
+                .then(a.reg.rms.total_cmp(&b.reg.rms))
+        });
+        tm.register += ms(t);
+
+        let best = &cands[0];
+        let entry = &self.lib.entries[best.entry];
+        let tpl = &entry.template;
+        let pose = best.reg.pose;
+        let origin = pose.apply(tpl.origin);
+        est.fit = best.reg.fit();
+        est.scale = pose.scale;
+        est.matched = Some((best.entry, pose));
+        let others: Vec<String> = aligned
+            .iter()
+            .filter(|(i, _)| *i != best.entry)
+            .take(2)
+            .map(|(i, al)| {
+                let t = &self.lib.entries[*i].template;
+                match cands.iter().find(|c| c.entry == *i) {
+                    Some(c) => format!("{} {} fit {:.3}", t.type_name, t.face, c.reg.fit()),
+                    None => format!("{} {} corr rms {:.4}", t.type_name, t.face, al.rms),
+                }
+            })
+            .collect();
+        est.detail = format!(
+            "best {} {}: fit {:.3} (inliers {:.3}, coverage {:.3}, extra {:.3}, missing {:.3}, rms {:.2} px, tol {:.2} px), corr rms {:.4}, scale {:.3}; next: {}",
+            tpl.type_name,
+            tpl.face,
+            est.fit,
+            best.reg.inliers,
+            best.reg.coverage,
+            best.reg.extra,
+            best.reg.missing,
+            best.reg.rms,
+            best.tolerance,
+            best.corr_rms,
+            pose.scale,
+            others.join(", ")
+        );
+        if est.fit < p.min_fit {
+            // Several parts merged into one region are larger than the template they resemble.
+            let nominal = self.lib.entries[aligned[0].0].template.area;
+            est.reason = if area > p.touching_area_ratio * nominal {
+                Reason::Touching
+            } else {
+                Reason::UnknownType
+            };
+            est.detail = format!("no template fits (need {:.2}); {}", p.min_fit, est.detail);
+            return Ok(est);
+        }
+        if pose.scale < p.scale_range.0 || pose.scale > p.scale_range.1 {
+            est.reason = Reason::UnknownType;
+            est.detail = format!(
+                "scale {:.3} outside {:.2}..{:.2}; {}",
+                pose.scale, p.scale_range.0, p.scale_range.1, est.detail
+            );
+            return Ok(est);
+        }
+        // From here on the part has a type, face and pose, accepted or not.
+        est.type_name = Some(tpl.type_name.clone());
+        est.type_id = tpl.type_id;
+        est.face = Some(tpl.face);
+        est.angle_deg = pose.angle_deg();
+        est.x = origin.x;
+        est.y = origin.y;
+        if best.reg.extra > p.max_foreign || best.reg.missing > p.max_foreign {
+            est.reason = Reason::Touching;
+            est.detail = format!(
+                "the outline {} (extra {:.3}, missing {:.3}, limit {:.3}); {}",
+                if best.reg.extra > p.max_foreign {
+                    "runs onto something else"
+                } else {
+                    "is partly hidden"
+                },
+                best.reg.extra,
+                best.reg.missing,
+                p.max_foreign,
+                est.detail
+            );
+            return Ok(est);
+        }
+
+        let t = Instant::now();
+        let noise_level = if refined.contrast > 0.0 {
+            (noise / refined.contrast).clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        let lambda = p.lambda0 * (1.0 - p.alpha * noise_level);
+        est.confidence = confidence(&tpl.segments, &est.segments, &pose, diag, lambda);
+        // A different type or face whose outline fits nearly as well must be told apart by the
+        // line features, or the part is ambiguous.
+        let rival = cands.iter().skip(1).find(|c| {
+            let o = &self.lib.entries[c.entry].template;
+            (o.type_name != tpl.type_name || o.face != tpl.face)
+                && c.reg.fit() >= est.fit - p.ambiguity_margin
+        });
+        let rival_conf = rival.map(|c| {
+            confidence(
+                &self.lib.entries[c.entry].template.segments,
+                &est.segments,
+                &c.reg.pose,
+                diag,
+                lambda,
+            )
+        });
+        tm.confidence += ms(t);
+        est.detail = format!(
+            "{}, confidence {:.3} (noise {:.1}, contrast {:.0}, lambda {:.1})",
+            est.detail, est.confidence, noise, refined.contrast, lambda
+        );
+
+        if let (Some(c), Some(rc)) = (rival, rival_conf) {
+            let o = &self.lib.entries[c.entry].template;
+            est.detail = format!(
+                "{}; rival {} {} fit {:.3} confidence {:.3}",
+                est.detail,
+                o.type_name,
+                o.face,
+                c.reg.fit(),
+                rc
+            );
+            if est.confidence - rc < p.confidence_margin {
+                est.reason = Reason::Ambiguous;
+                est.detail = format!(
+                    "{} {} fits almost as well and its line features are not clearly worse; {}",
+                    o.type_name, o.face, est.detail
+                );
+                return Ok(est);
+            }
+        }
+        if est.confidence < p.accept_threshold {
+            est.reason = Reason::LowConfidence;
+            return Ok(est);
+        }
+        est.accepted = true;
+        est.reason = Reason::Ok;
+        Ok(est)
+    }
+}
+
+/// conf = (1/N) sum_k gamma_k exp(-lambda err_k) over the template's N line features mapped into
+/// the frame, gamma_k proportional to segment length (mean 1). A template without line features
+/// cannot vouch for anything and gets 0.
+pub fn confidence(
+    expected: &[Segment],
+    found: &[Segment],
+    pose: &Similarity,
+    size: f64,
+    lambda: f64,
+) -> f64 {
+    let total: f64 = expected.iter().map(|s| s.len()).sum();
+    if expected.is_empty() || total <= 0.0 || size <= 0.0 {
+        return 0.0;
+    }
+    let n = expected.len() as f64;
+    let sum: f64 = expected
+        .iter()
+        .map(|s| {
+            let mapped = Segment {
+                a: pose.apply(s.a),
+                b: pose.apply(s.b),
+                width: s.width,
+            };
+            let gamma = n * s.len() / total;
+            gamma * (-lambda * lines::segment_error(&mapped, found, size)).exp()
+        })
+        .sum();
+    (sum / n).clamp(0.0, 1.0)
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}

@@ -1,0 +1,179 @@
+//! Templates (one clean image per part type and face) and the compiled library the estimator
+//! correlates against.
+
+use super::boundary;
+use super::correlate::{Correlator, Spectrum};
+use super::detect::{self, DetectParams};
+use super::frame::{FrameError, GrayView};
+use super::geometry::{Pt, area_centroid, bounds};
+use super::lines::{self, Segment};
+use super::register::OutlineIndex;
+use super::signal::log_radius_signal;
+use super::{Face, Params};
+
+/// What the estimator knows about one face of one part type.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Template {
+    pub type_name: String,
+    /// Numeric id served to the PLC (1..=65535; 0 means "no type").
+    pub type_id: u16,
+    pub face: Face,
+    pub image_width: usize,
+    pub image_height: usize,
+    /// The point reported as the part's position, template pixels. By default the centre of the
+    /// template image: like a vision tool's model origin, it is rigidly attached to the part, so a
+    /// robot program taught on it stays valid whatever point the user chose.
+    pub origin: Pt,
+    /// Centroid of the filled outline, template pixels.
+    pub centroid: Pt,
+    /// Area enclosed by the outline, template pixels.
+    pub area: f64,
+    /// Sub-pixel outline, template pixels.
+    pub outline: Vec<Pt>,
+    /// Line segments (frame of the template image).
+    pub segments: Vec<Segment>,
+}
+
+/// Why an image cannot become a template.
+#[derive(Debug, thiserror::Error)]
+pub enum TemplateError {
+    #[error(transparent)]
+    Frame(#[from] FrameError),
+    #[error(
+        "no part found in the template image (nothing larger than {min_area:.0} px^2 stands out from the background)"
+    )]
+    NoPart { min_area: f64 },
+    #[error(
+        "the part in the template image touches the image border; crop the template with a margin around the part"
+    )]
+    AtBorder,
+    #[error("type id {0} is reserved; use 1..=65535")]
+    ReservedId(u16),
+    #[error("type name is empty")]
+    EmptyName,
+}
+
+impl Template {
+    /// Learns a template from one clean image showing one part.
+    pub fn from_image(
+        image: GrayView<'_>,
+        type_name: &str,
+        type_id: u16,
+        face: Face,
+        origin: Option<Pt>,
+        params: &Params,
+    ) -> Result<Self, TemplateError> {
+        if type_name.trim().is_empty() {
+            return Err(TemplateError::EmptyName);
+        }
+        if type_id == 0 {
+            return Err(TemplateError::ReservedId(0));
+        }
+        let min_area = 0.01 * (image.width() * image.height()) as f64;
+        let dp = DetectParams {
+            min_area,
+            ..params.detect_params(min_area)
+        };
+        let noise = boundary::noise_sigma(image, &[]);
+        let coarse = detect::detect(image, &dp)?;
+        let blob = coarse
+            .blobs
+            .iter()
+            .max_by(|a, b| a.area.total_cmp(&b.area))
+            .ok_or(TemplateError::NoPart { min_area })?;
+        if blob.touches_border {
+            return Err(TemplateError::AtBorder);
+        }
+        let outline = boundary::refine(
+            image,
+            &blob.outline,
+            noise,
+            &params.refine_params(coarse.factor),
+        )
+        .outline;
+        let (area, centroid) = area_centroid(&outline);
+        let (lo, hi) = bounds(&outline);
+        let diag = (hi - lo).norm();
+        let segments = lines::part_segments(
+            params.line_detector,
+            &coarse.small,
+            &coarse.edges,
+            coarse.factor,
+            blob,
+            params.min_segment_fraction * diag,
+        )?;
+        let origin = origin.unwrap_or(Pt::new(
+            (image.width() as f64 - 1.0) / 2.0,
+            (image.height() as f64 - 1.0) / 2.0,
+        ));
+        Ok(Self {
+            type_name: type_name.trim().to_string(),
+            type_id,
+            face,
+            image_width: image.width(),
+            image_height: image.height(),
+            origin,
+            centroid,
+            area: area.abs(),
+            outline,
+            segments,
+        })
+    }
+
+    /// Root-mean-square distance of the outline from the centroid: the part's size.
+    pub fn rms_radius(&self) -> f64 {
+        let n = self.outline.len().max(1) as f64;
+        (self
+            .outline
+            .iter()
+            .map(|p| (*p - self.centroid).dot(*p - self.centroid))
+            .sum::<f64>()
+            / n)
+            .sqrt()
+    }
+}
+
+/// A template prepared for matching: its signal's spectrum and its outline's spatial index.
+#[derive(Debug, Clone)]
+pub struct Compiled {
+    pub template: Template,
+    pub spectrum: Spectrum,
+    pub index: OutlineIndex,
+    pub diag: f64,
+}
+
+impl std::fmt::Debug for Spectrum {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Spectrum({} bins)", self.bins.len())
+    }
+}
+
+/// All enrolled templates, compiled once when the estimator is built.
+#[derive(Debug, Clone)]
+pub struct Library {
+    pub entries: Vec<Compiled>,
+    pub correlator: Correlator,
+}
+
+impl Library {
+    pub fn new(templates: &[Template], bins: usize) -> Self {
+        let correlator = Correlator::new(bins);
+        let entries = templates
+            .iter()
+            .map(|t| {
+                let signal = log_radius_signal(&t.outline, t.centroid, bins);
+                let (lo, hi) = bounds(&t.outline);
+                Compiled {
+                    template: t.clone(),
+                    spectrum: correlator.spectrum(&signal),
+                    index: OutlineIndex::new(&t.outline),
+                    diag: (hi - lo).norm(),
+                }
+            })
+            .collect();
+        Self {
+            entries,
+            correlator,
+        }
+    }
+}
