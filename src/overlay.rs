@@ -14,56 +14,24 @@ fn bgr(c: (f64, f64, f64)) -> Scalar {
     Scalar::new(c.0, c.1, c.2, 0.0)
 }
 
-fn poly(
-    img: &mut Mat,
-    pts: &[Pt],
-    scale: f64,
-    color: Scalar,
-    thickness: i32,
-) -> opencv::Result<()> {
-    let v: core::Vector<Point> = pts
-        .iter()
-        .map(|p| {
-            Point::new(
-                (p.x * scale * 16.0).round() as i32,
-                (p.y * scale * 16.0).round() as i32,
-            )
-        })
-        .collect();
+fn poly(img: &mut Mat, pts: &[Pt], scale: f64, color: Scalar, thickness: i32) -> opencv::Result<()> {
+    let v: core::Vector<Point> =
+        pts.iter().map(|p| Point::new((p.x * scale * 16.0).round() as i32, (p.y * scale * 16.0).round() as i32)).collect();
     let mut all = core::Vector::<core::Vector<Point>>::new();
     all.push(v);
     imgproc::polylines(img, &all, true, color, thickness, imgproc::LINE_AA, 4)
 }
 
-fn line(
-    img: &mut Mat,
-    a: Pt,
-    b: Pt,
-    scale: f64,
-    color: Scalar,
-    thickness: i32,
-) -> opencv::Result<()> {
-    let p = |q: Pt| {
-        Point::new(
-            (q.x * scale * 16.0).round() as i32,
-            (q.y * scale * 16.0).round() as i32,
-        )
-    };
+fn line(img: &mut Mat, a: Pt, b: Pt, scale: f64, color: Scalar, thickness: i32) -> opencv::Result<()> {
+    let p = |q: Pt| Point::new((q.x * scale * 16.0).round() as i32, (q.y * scale * 16.0).round() as i32);
     imgproc::line(img, p(a), p(b), color, thickness, imgproc::LINE_AA, 4)
 }
 
 /// A colour picture of the frame, scaled by `scale`, with each part's outline (green accepted,
 /// red rejected), the matched template's outline in blue, line features in yellow, the
 /// orientation axis thick, and a label.
-pub fn draw(
-    frame: GrayView<'_>,
-    est: &FrameEstimate,
-    estimator: &Estimator,
-    scale: f64,
-) -> opencv::Result<Mat> {
-    let src = frame
-        .as_mat()
-        .map_err(|e| opencv::Error::new(core::StsError, e.to_string()))?;
+pub fn draw(frame: GrayView<'_>, est: &FrameEstimate, estimator: &Estimator, scale: f64) -> opencv::Result<Mat> {
+    let src = frame.as_mat().map_err(|e| opencv::Error::new(core::StsError, e.to_string()))?;
     let mut small = Mat::default();
     let size = core::Size::new(
         ((frame.width() as f64) * scale).round().max(1.0) as i32,
@@ -98,14 +66,7 @@ pub fn draw(
                 p.confidence
             )
         } else {
-            format!(
-                "REJECT {}{}",
-                p.reason,
-                p.type_name
-                    .as_deref()
-                    .map(|t| format!(" ({t})"))
-                    .unwrap_or_default()
-            )
+            format!("REJECT {}{}", p.reason, p.type_name.as_deref().map(|t| format!(" ({t})")).unwrap_or_default())
         };
         let at = Point::new((p.x * scale) as i32 - 60, (p.y * scale) as i32);
         let fs = (0.5 * scale * 4.0).clamp(0.4, 1.5);
@@ -120,17 +81,7 @@ pub fn draw(
             imgproc::LINE_AA,
             false,
         )?;
-        imgproc::put_text(
-            &mut img,
-            &label,
-            at,
-            imgproc::FONT_HERSHEY_SIMPLEX,
-            fs,
-            color,
-            thick,
-            imgproc::LINE_AA,
-            false,
-        )?;
+        imgproc::put_text(&mut img, &label, at, imgproc::FONT_HERSHEY_SIMPLEX, fs, color, thick, imgproc::LINE_AA, false)?;
     }
     Ok(img)
 }

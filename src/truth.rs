@@ -68,9 +68,7 @@ pub fn parse_truth(text: &str, origin: &str) -> Result<Vec<TruthRecord>, String>
     text.lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| {
-            serde_json::from_str::<TruthRecord>(l).map_err(|e| format!("{origin}:{}: {e}", i + 1))
-        })
+        .map(|(i, l)| serde_json::from_str::<TruthRecord>(l).map_err(|e| format!("{origin}:{}: {e}", i + 1)))
         .collect()
 }
 

@@ -15,17 +15,7 @@ use crate::vision::{Face, GrayImage, Pt};
 use render::{Lighting, Placement, Prepared};
 
 /// Scene kinds, in the order they cycle.
-pub const CONDITIONS: [&str; 9] = [
-    "clean",
-    "noise",
-    "glare",
-    "dim",
-    "multi",
-    "touching",
-    "overlapping",
-    "empty",
-    "unknown",
-];
+pub const CONDITIONS: [&str; 9] = ["clean", "noise", "glare", "dim", "multi", "touching", "overlapping", "empty", "unknown"];
 
 /// Simulator settings.
 #[derive(Debug, Clone)]
@@ -39,12 +29,7 @@ pub struct SimConfig {
 
 impl Default for SimConfig {
     fn default() -> Self {
-        Self {
-            width: 2592,
-            height: 1944,
-            seed: 1,
-            noise: None,
-        }
+        Self { width: 2592, height: 1944, seed: 1, noise: None }
     }
 }
 
@@ -90,10 +75,7 @@ pub struct Simulator {
 impl Simulator {
     pub fn new(cfg: SimConfig) -> Result<Self, SimError> {
         if cfg.width < 320 || cfg.height < 240 {
-            return Err(SimError::TooSmall {
-                width: cfg.width,
-                height: cfg.height,
-            });
+            return Err(SimError::TooSmall { width: cfg.width, height: cfg.height });
         }
         if let Some(n) = cfg.noise
             && !(0.0..=100.0).contains(&n)
@@ -128,14 +110,7 @@ impl Simulator {
                 let r = prep.radius * self.px_per_mm;
                 let half = (r + (0.12 * r).max(30.0)).ceil() as usize;
                 let size = 2 * half + 1;
-                let pl = Placement {
-                    face,
-                    angle_deg: 0.0,
-                    x: half as f64,
-                    y: half as f64,
-                    px_per_mm: self.px_per_mm,
-                    gray: 175.0,
-                };
+                let pl = Placement { face, angle_deg: 0.0, x: half as f64, y: half as f64, px_per_mm: self.px_per_mm, gray: 175.0 };
                 let light = Lighting {
                     exposure: 0.92,
                     gradient: 0.0,
@@ -145,8 +120,7 @@ impl Simulator {
                     noise_sigma: 1.0,
                     belt_gray: 55.0,
                 };
-                let mut rng =
-                    ChaCha8Rng::seed_from_u64(self.cfg.seed ^ (0x7e3a_0000 + (ti * 2 + fi) as u64));
+                let mut rng = ChaCha8Rng::seed_from_u64(self.cfg.seed ^ (0x7e3a_0000 + (ti * 2 + fi) as u64));
                 let img = render::render(size, size, &[(prep, pl)], &light, &mut rng)?;
                 out.push((prep.model.name.to_string(), face, img));
             }
@@ -156,10 +130,7 @@ impl Simulator {
 
     /// Scene `index` with its cycling condition.
     pub fn scene(&self, index: u64) -> Result<Scene, SimError> {
-        self.scene_with(
-            index,
-            CONDITIONS[(index % CONDITIONS.len() as u64) as usize],
-        )
+        self.scene_with(index, CONDITIONS[(index % CONDITIONS.len() as u64) as usize])
     }
 
     /// Scene `index` of a given condition.
@@ -167,19 +138,14 @@ impl Simulator {
         if !CONDITIONS.contains(&condition) {
             return Err(SimError::Condition(condition.into()));
         }
-        let mut rng =
-            ChaCha8Rng::seed_from_u64(self.cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index);
+        let mut rng = ChaCha8Rng::seed_from_u64(self.cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index);
         let scale = self.px_per_mm * rng.random_range(0.975..1.025);
         let mut light = Lighting {
             exposure: rng.random_range(0.85..1.0),
             gradient: rng.random_range(0.0..0.12),
             gradient_dir_deg: rng.random_range(0.0..360.0),
             glare: None,
-            blur_sigma: if rng.random_bool(0.5) {
-                rng.random_range(0.0..1.1)
-            } else {
-                0.0
-            },
+            blur_sigma: if rng.random_bool(0.5) { rng.random_range(0.0..1.1) } else { 0.0 },
             noise_sigma: rng.random_range(0.5..4.0),
             belt_gray: rng.random_range(48.0..62.0),
         };
@@ -193,23 +159,13 @@ impl Simulator {
                     parts.push((p, pl));
                 }
                 match condition {
-                    "noise" => {
-                        light.noise_sigma =
-                            noise_cycle[((index / CONDITIONS.len() as u64) % 4) as usize]
-                    }
+                    "noise" => light.noise_sigma = noise_cycle[((index / CONDITIONS.len() as u64) % 4) as usize],
                     "dim" => light.exposure = rng.random_range(0.18..0.35),
                     "glare" => {
                         if let Some((p, pl)) = parts.first() {
                             let r = p.radius * pl.px_per_mm;
-                            let c = Pt::new(
-                                pl.x + rng.random_range(-0.4..0.4) * r,
-                                pl.y + rng.random_range(-0.4..0.4) * r,
-                            );
-                            light.glare = Some((
-                                c,
-                                rng.random_range(0.3..0.6) * r,
-                                rng.random_range(90.0..160.0),
-                            ));
+                            let c = Pt::new(pl.x + rng.random_range(-0.4..0.4) * r, pl.y + rng.random_range(-0.4..0.4) * r);
+                            light.glare = Some((c, rng.random_range(0.3..0.6) * r, rng.random_range(90.0..160.0)));
                         }
                     }
                     _ => {}
@@ -231,9 +187,7 @@ impl Simulator {
                     let Some(pa) = self.free_spot(&mut rng, a, scale, &[]) else {
                         continue;
                     };
-                    if let Some(pb) =
-                        self.neighbour(&mut rng, (a, pa), b, scale, condition == "overlapping")
-                    {
+                    if let Some(pb) = self.neighbour(&mut rng, (a, pa), b, scale, condition == "overlapping") {
                         parts = vec![(a, pa), (b, pb)];
                         break;
                     }
@@ -282,12 +236,7 @@ impl Simulator {
             width: self.cfg.width,
             height: self.cfg.height,
         };
-        Ok(Scene {
-            name,
-            image,
-            truth,
-            extra,
-        })
+        Ok(Scene { name, image, truth, extra })
     }
 
     fn random_pose(&self, rng: &mut ChaCha8Rng, p: &Prepared, scale: f64) -> Option<Placement> {
@@ -297,11 +246,7 @@ impl Simulator {
             return None;
         }
         Some(Placement {
-            face: if rng.random_bool(0.5) {
-                Face::Up
-            } else {
-                Face::Down
-            },
+            face: if rng.random_bool(0.5) { Face::Up } else { Face::Down },
             angle_deg: rng.random_range(0.0..360.0),
             x: rng.random_range(r..w - r),
             y: rng.random_range(r..h - r),
@@ -311,20 +256,11 @@ impl Simulator {
     }
 
     /// A pose at least 40 px clear of every part already placed.
-    fn free_spot(
-        &self,
-        rng: &mut ChaCha8Rng,
-        p: &Prepared,
-        scale: f64,
-        placed: &[(&Prepared, Placement)],
-    ) -> Option<Placement> {
+    fn free_spot(&self, rng: &mut ChaCha8Rng, p: &Prepared, scale: f64, placed: &[(&Prepared, Placement)]) -> Option<Placement> {
         for _ in 0..300 {
             let pl = self.random_pose(rng, p, scale)?;
             let polys = p.material_polys(&pl);
-            if placed
-                .iter()
-                .all(|(q, ql)| separation(&polys, &q.material_polys(ql)) > 40.0)
-            {
+            if placed.iter().all(|(q, ql)| separation(&polys, &q.material_polys(ql)) > 40.0) {
                 return Some(pl);
             }
         }
@@ -332,14 +268,7 @@ impl Simulator {
     }
 
     /// A pose of `b` touching `a` (or overlapping it by about a quarter), inside the frame.
-    fn neighbour(
-        &self,
-        rng: &mut ChaCha8Rng,
-        a: (&Prepared, Placement),
-        b: &Prepared,
-        scale: f64,
-        overlap: bool,
-    ) -> Option<Placement> {
+    fn neighbour(&self, rng: &mut ChaCha8Rng, a: (&Prepared, Placement), b: &Prepared, scale: f64, overlap: bool) -> Option<Placement> {
         let pa = a.0.material_polys(&a.1);
         let mut pl = self.random_pose(rng, b, scale)?;
         let dir = rng.random_range(0.0..std::f64::consts::TAU);
@@ -352,19 +281,12 @@ impl Simulator {
         for _ in 0..30 {
             let mid = 0.5 * (lo + hi);
             at(mid, &mut pl);
-            if separation(&pa, &b.material_polys(&pl)) > 0.5 {
-                hi = mid
-            } else {
-                lo = mid
-            }
+            if separation(&pa, &b.material_polys(&pl)) > 0.5 { hi = mid } else { lo = mid }
         }
         let d = if overlap { 0.8 * lo } else { lo };
         at(d, &mut pl);
         let r = b.radius * scale + 12.0;
-        let inside = pl.x > r
-            && pl.y > r
-            && pl.x < self.cfg.width as f64 - r
-            && pl.y < self.cfg.height as f64 - r;
+        let inside = pl.x > r && pl.y > r && pl.x < self.cfg.width as f64 - r && pl.y < self.cfg.height as f64 - r;
         inside.then_some(pl)
     }
 }
@@ -397,14 +319,8 @@ mod tests {
         use models::{Model, Shape};
         let m = Model {
             name: "t",
-            material: vec![Shape::Circle {
-                c: (0.0, 0.0),
-                r: 10.0,
-            }],
-            holes: vec![Shape::Circle {
-                c: (5.0, 0.0),
-                r: 2.0,
-            }],
+            material: vec![Shape::Circle { c: (0.0, 0.0), r: 10.0 }],
+            holes: vec![Shape::Circle { c: (5.0, 0.0), r: 2.0 }],
             top: vec![],
             bottom: vec![],
             rounded: 0.0,
@@ -417,27 +333,13 @@ mod tests {
 
     #[test]
     fn scenes_are_reproducible_and_name_their_condition() {
-        let sim = Simulator::new(SimConfig {
-            width: 640,
-            height: 480,
-            seed: 7,
-            noise: None,
-        })
-        .unwrap();
+        let sim = Simulator::new(SimConfig { width: 640, height: 480, seed: 7, noise: None }).unwrap();
         let a = sim.scene(4).unwrap();
         let b = sim.scene(4).unwrap();
         assert_eq!(a.image, b.image);
         assert_eq!(a.truth.condition, "multi");
         assert!(a.name.ends_with("multi"));
         assert!(sim.scene_with(0, "fog").is_err());
-        assert!(
-            Simulator::new(SimConfig {
-                width: 100,
-                height: 100,
-                seed: 1,
-                noise: None
-            })
-            .is_err()
-        );
+        assert!(Simulator::new(SimConfig { width: 100, height: 100, seed: 1, noise: None }).is_err());
     }
 }

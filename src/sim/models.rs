@@ -102,13 +102,7 @@ impl Shape {
                 vec![v]
             }
             Shape::Poly(ref p) => vec![p.clone()],
-            Shape::Sector {
-                c,
-                r_in,
-                r_out,
-                from_deg,
-                to_deg,
-            } => {
+            Shape::Sector { c, r_in, r_out, from_deg, to_deg } => {
                 let mut v = arc(c, r_out, from_deg, to_deg);
                 let mut inner = arc(c, r_in, from_deg, to_deg);
                 inner.reverse();
@@ -123,11 +117,7 @@ fn circle(x: f64, y: f64, r: f64) -> Shape {
     Shape::Circle { c: (x, y), r }
 }
 fn ring(x: f64, y: f64, r_in: f64, r_out: f64) -> Shape {
-    Shape::Ring {
-        c: (x, y),
-        r_in,
-        r_out,
-    }
+    Shape::Ring { c: (x, y), r_in, r_out }
 }
 fn capsule(a: (f64, f64), b: (f64, f64), r: f64) -> Shape {
     Shape::Capsule { a, b, r }
@@ -154,26 +144,14 @@ pub fn bracket() -> Model {
             circle(-50.0, 18.0, 11.0),
             circle(40.0, 0.0, 20.0),
         ],
-        holes: vec![
-            circle(-50.0, 18.0, 5.0),
-            circle(40.0, 0.0, 8.5),
-            circle(-9.0, 8.0, 3.5),
-        ],
+        holes: vec![circle(-50.0, 18.0, 5.0), circle(40.0, 0.0, 8.5), circle(-9.0, 8.0, 3.5)],
         top: vec![
             feat(ring(40.0, 0.0, 8.5, 17.0), Look::Raised),
             feat(capsule((-42.0, 13.0), (24.0, 3.0), 3.2), Look::Raised),
             feat(ring(-9.0, 8.0, 3.5, 7.5), Look::Raised),
         ],
         bottom: vec![
-            feat(
-                Shape::Poly(vec![
-                    (-30.0, -18.0),
-                    (2.0, -20.0),
-                    (3.0, -5.0),
-                    (-29.0, -3.0),
-                ]),
-                Look::Recessed,
-            ),
+            feat(Shape::Poly(vec![(-30.0, -18.0), (2.0, -20.0), (3.0, -5.0), (-29.0, -3.0)]), Look::Recessed),
             feat(circle(15.0, -15.0, 2.6), Look::Blind),
             feat(circle(-38.0, 0.0, 2.6), Look::Blind),
             feat(circle(12.0, 14.0, 2.6), Look::Blind),
@@ -193,12 +171,7 @@ pub fn flange() -> Model {
             capsule((-26.0, 33.0), (-34.0, 40.0), 6.5),
             capsule((36.0, 28.0), (43.0, 33.0), 6.0),
         ],
-        holes: vec![
-            circle(0.0, 0.0, 17.0),
-            circle(50.0, -22.0, 5.5),
-            circle(-34.0, 40.0, 2.8),
-            circle(43.0, 33.0, 2.6),
-        ],
+        holes: vec![circle(0.0, 0.0, 17.0), circle(50.0, -22.0, 5.5), circle(-34.0, 40.0, 2.8), circle(43.0, 33.0, 2.6)],
         top: vec![
             feat(ring(0.0, 0.0, 17.0, 27.0), Look::Raised),
             feat(ring(0.0, 0.0, 30.0, 37.0), Look::Recessed),
@@ -224,51 +197,21 @@ pub fn clevis() -> Model {
     Model {
         name: "clevis",
         material: vec![
-            Shape::Sector {
-                c: arc_c,
-                r_in: 23.5,
-                r_out: 32.5,
-                from_deg: 42.0,
-                to_deg: 318.0,
-            },
-            Shape::Circle {
-                c: end(42.0),
-                r: 6.5,
-            },
-            Shape::Circle {
-                c: end(318.0),
-                r: 7.5,
-            },
+            Shape::Sector { c: arc_c, r_in: 23.5, r_out: 32.5, from_deg: 42.0, to_deg: 318.0 },
+            Shape::Circle { c: end(42.0), r: 6.5 },
+            Shape::Circle { c: end(318.0), r: 7.5 },
             capsule((-12.0, 0.0), (-40.0, 0.0), 8.5),
             circle(-46.0, 0.0, 12.5),
             circle(-30.0, 11.5, 5.5),
         ],
         holes: vec![circle(-46.0, 0.0, 6.5), circle(-30.0, 11.5, 2.2)],
         top: vec![
-            feat(
-                Shape::Sector {
-                    c: arc_c,
-                    r_in: 26.5,
-                    r_out: 29.0,
-                    from_deg: 60.0,
-                    to_deg: 300.0,
-                },
-                Look::Raised,
-            ),
+            feat(Shape::Sector { c: arc_c, r_in: 26.5, r_out: 29.0, from_deg: 60.0, to_deg: 300.0 }, Look::Raised),
             feat(capsule((-16.0, 0.0), (-34.0, 0.0), 5.0), Look::Raised),
         ],
         bottom: vec![
             feat(capsule((-15.0, 0.0), (-33.0, 0.0), 2.6), Look::Recessed),
-            feat(
-                Shape::Sector {
-                    c: arc_c,
-                    r_in: 27.0,
-                    r_out: 28.5,
-                    from_deg: 70.0,
-                    to_deg: 200.0,
-                },
-                Look::Recessed,
-            ),
+            feat(Shape::Sector { c: arc_c, r_in: 27.0, r_out: 28.5, from_deg: 70.0, to_deg: 200.0 }, Look::Recessed),
             feat(circle(-46.0, -10.0, 1.8), Look::Blind),
         ],
         rounded: 3.0,
@@ -279,23 +222,9 @@ pub fn clevis() -> Model {
 pub fn lever() -> Model {
     Model {
         name: "lever",
-        material: vec![Shape::Poly(vec![
-            (-52.0, -26.0),
-            (44.0, -26.0),
-            (46.0, -9.0),
-            (-18.0, -9.0),
-            (-20.0, 31.0),
-            (-52.0, 31.0),
-        ])],
-        holes: vec![
-            capsule((-4.0, -18.0), (24.0, -18.0), 3.2),
-            circle(-41.0, 21.0, 4.0),
-            circle(37.0, -18.0, 3.0),
-        ],
-        top: vec![feat(
-            capsule((-30.0, 14.0), (-12.0, -16.0), 2.5),
-            Look::Raised,
-        )],
+        material: vec![Shape::Poly(vec![(-52.0, -26.0), (44.0, -26.0), (46.0, -9.0), (-18.0, -9.0), (-20.0, 31.0), (-52.0, 31.0)])],
+        holes: vec![capsule((-4.0, -18.0), (24.0, -18.0), 3.2), circle(-41.0, 21.0, 4.0), circle(37.0, -18.0, 3.0)],
+        top: vec![feat(capsule((-30.0, 14.0), (-12.0, -16.0), 2.5), Look::Raised)],
         bottom: vec![feat(circle(-38.0, -15.0, 2.0), Look::Blind)],
         rounded: 0.0,
     }

@@ -53,19 +53,11 @@ pub struct Lighting {
     pub belt_gray: f64,
 }
 
-fn poly_mm_to_px(
-    pts: &[(f64, f64)],
-    prep: &Prepared,
-    pl: &Placement,
-    off: (i32, i32),
-) -> Vector<Point> {
+fn poly_mm_to_px(pts: &[(f64, f64)], prep: &Prepared, pl: &Placement, off: (i32, i32)) -> Vector<Point> {
     pts.iter()
         .map(|&q| {
             let p = map_point(prep, pl, q);
-            Point::new(
-                ((p.x - off.0 as f64) * SUB).round() as i32,
-                ((p.y - off.1 as f64) * SUB).round() as i32,
-            )
+            Point::new(((p.x - off.0 as f64) * SUB).round() as i32, ((p.y - off.1 as f64) * SUB).round() as i32)
         })
         .collect()
 }
@@ -82,26 +74,12 @@ pub fn map_point(prep: &Prepared, pl: &Placement, q: (f64, f64)) -> Pt {
     Pt::new(pl.x, pl.y) + crate::vision::geometry::rotate_display(d, pl.angle_deg.to_radians())
 }
 
-fn fill(
-    img: &mut Mat,
-    shape: &Shape,
-    prep: &Prepared,
-    pl: &Placement,
-    off: (i32, i32),
-    value: f64,
-) -> opencv::Result<()> {
+fn fill(img: &mut Mat, shape: &Shape, prep: &Prepared, pl: &Placement, off: (i32, i32), value: f64) -> opencv::Result<()> {
     let mut polys: Vector<Vector<Point>> = Vector::new();
     for c in shape.contours() {
         polys.push(poly_mm_to_px(&c, prep, pl, off));
     }
-    imgproc::fill_poly(
-        img,
-        &polys,
-        Scalar::all(value),
-        imgproc::LINE_AA,
-        SHIFT,
-        Point::new(0, 0),
-    )
+    imgproc::fill_poly(img, &polys, Scalar::all(value), imgproc::LINE_AA, SHIFT, Point::new(0, 0))
 }
 
 fn outline(
@@ -117,79 +95,83 @@ fn outline(
     for c in shape.contours() {
         polys.push(poly_mm_to_px(&c, prep, pl, off));
     }
-    imgproc::polylines(
-        img,
-        &polys,
-        true,
-        Scalar::all(value),
-        thickness,
-        imgproc::LINE_AA,
-        SHIFT,
-    )
+    imgproc::polylines(img, &polys, true, Scalar::all(value), thickness, imgproc::LINE_AA, SHIFT)
 }
 
 impl Prepared {
     pub fn new(model: Model) -> Self {
-        // Rasterise the face-up material at 10 px/mm and take its moments.
-        let k = 10.0;
-        let pts: Vec<(f64, f64)> = model
-            .material
-            .iter()
-            .flat_map(|s| s.contours())
-            .flatten()
-            .collect();
-        let (minx, maxx) = pts
-            .iter()
-            .fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.0), a.1.max(p.0)));
-        let (miny, maxy) = pts
-            .iter()
-            .fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.1), a.1.max(p.1)));
-        let w = ((maxx - minx) * k) as i32 + 20;
-        let h = ((maxy - miny) * k) as i32 + 20;
-        let probe = Prepared {
-            model: model.clone(),
-            centroid: (0.0, 0.0),
-            radius: 0.0,
-        };
-        let pl = Placement {
-            face: Face::Up,
-            angle_deg: 0.0,
-            x: -minx * k + 10.0,
-            y: -miny * k + 10.0,
-            px_per_mm: k,
-            gray: 255.0,
-        };
-        let mut m = Mat::new_rows_cols_with_default(h, w, core::CV_8UC1, Scalar::all(0.0))
-            .expect("allocate raster");
-        for s in &model.material {
-            fill(&mut m, s, &probe, &pl, (0, 0), 255.0).expect("draw material");
-        }
-        for s in &model.holes {
-            fill(&mut m, s, &probe, &pl, (0, 0), 0.0).expect("draw hole");
-        }
-        let mo = imgproc::moments(&m, false).expect("moments");
-        let cx = (mo.m10 / mo.m00 - pl.x) / k;
-        let cy = (mo.m01 / mo.m00 - pl.y) / k;
-        let radius = pts
-            .iter()
-            .map(|p| (p.0 - cx).hypot(p.1 - cy))
-            .fold(0.0, f64::max);
-        Prepared {
-            model,
-            centroid: (cx, cy),
-            radius,
-        }
+        let (_, cx, cy) = material_moments(&model);
+        let pts: Vec<(f64, f64)> = model.material.iter().flat_map(|s| s.contours()).flatten().collect();
+        let radius = pts.iter().map(|p| (p.0 - cx).hypot(p.1 - cy)).fold(0.0, f64::max);
+        Prepared { model, centroid: (cx, cy), radius }
     }
 
     /// Material outline polygons in frame pixels for a placement (for spacing parts apart).
     pub fn material_polys(&self, pl: &Placement) -> Vec<Vec<Pt>> {
-        self.model
-            .material
-            .iter()
-            .flat_map(|s| s.contours())
-            .map(|c| c.iter().map(|&q| map_point(self, pl, q)).collect())
-            .collect()
+        self.model.material.iter().flat_map(|s| s.contours()).map(|c| c.iter().map(|&q| map_point(self, pl, q)).collect()).collect()
     }
+}
+
+/// x-intervals where a horizontal line at `y` is inside a shape (even-odd over its contours).
+fn spans(shape: &Shape, y: f64) -> Vec<(f64, f64)> {
+    let mut xs = Vec::new();
+    for c in shape.contours() {
+        let n = c.len();
+        for i in 0..n {
+            let (a, b) = (c[i], c[(i + 1) % n]);
+            if (a.1 > y) != (b.1 > y) {
+                xs.push(a.0 + (y - a.1) / (b.1 - a.1) * (b.0 - a.0));
+            }
+        }
+    }
+    xs.sort_by(f64::total_cmp);
+    xs.chunks_exact(2).map(|p| (p[0], p[1])).collect()
+}
+
+/// Union of interval lists, sorted and merged.
+fn union(mut v: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
+    v.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut out: Vec<(f64, f64)> = Vec::with_capacity(v.len());
+    for (a, b) in v {
+        match out.last_mut() {
+            Some(last) if a <= last.1 => last.1 = last.1.max(b),
+            _ => out.push((a, b)),
+        }
+    }
+    out
+}
+
+/// Area and centroid (mm) of a model's material (union of `material` minus union of `holes`),
+/// integrated exactly along scanlines 0.01 mm apart: independent of any rasteriser's edge rule.
+pub fn material_moments(model: &Model) -> (f64, f64, f64) {
+    let pts: Vec<(f64, f64)> = model.material.iter().flat_map(|s| s.contours()).flatten().collect();
+    let (y0, y1) = pts.iter().fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.1), a.1.max(p.1)));
+    let h = 0.01;
+    let (mut area, mut mx, mut my) = (0.0, 0.0, 0.0);
+    let mut y = y0 + h / 2.0;
+    while y < y1 {
+        let mat = union(model.material.iter().flat_map(|s| spans(s, y)).collect());
+        let holes = union(model.holes.iter().flat_map(|s| spans(s, y)).collect());
+        for &(a, b) in &mat {
+            // Subtract the holes from [a, b].
+            let mut cur = a;
+            for &(ha, hb) in holes.iter().filter(|(ha, hb)| *hb > a && *ha < b) {
+                if ha > cur {
+                    area += (ha - cur) * h;
+                    mx += (ha * ha - cur * cur) / 2.0 * h;
+                    my += (ha - cur) * y * h;
+                }
+                cur = cur.max(hb);
+            }
+            if b > cur {
+                area += (b - cur) * h;
+                mx += (b * b - cur * cur) / 2.0 * h;
+                my += (b - cur) * y * h;
+            }
+        }
+        y += h;
+    }
+    (area, mx / area, my / area)
 }
 
 /// Low-frequency random field (zero mean, unit-ish amplitude) with features about `scale` px.
@@ -200,14 +182,7 @@ fn low_freq(w: i32, h: i32, scale: f64, rng: &mut impl Rng) -> opencv::Result<Ma
     let vals: Vec<f32> = (0..sw * sh).map(|_| n.sample(rng)).collect();
     let small = Mat::new_rows_cols_with_data(sh, sw, &vals)?.try_clone()?;
     let mut out = Mat::default();
-    imgproc::resize(
-        &small,
-        &mut out,
-        Size::new(w, h),
-        0.0,
-        0.0,
-        imgproc::INTER_CUBIC,
-    )?;
+    imgproc::resize(&small, &mut out, Size::new(w, h), 0.0, 0.0, imgproc::INTER_CUBIC)?;
     Ok(out)
 }
 
@@ -284,57 +259,25 @@ pub fn render(
         // Appearance of the visible face.
         let g = pl.gray;
         let mut app = Mat::new_rows_cols_with_default(rh, rw, core::CV_8UC1, Scalar::all(g))?;
-        let feats = if pl.face == Face::Up {
-            &prep.model.top
-        } else {
-            &prep.model.bottom
-        };
+        let feats = if pl.face == Face::Up { &prep.model.top } else { &prep.model.bottom };
         let line = ((0.25 * pl.px_per_mm).round() as i32).max(1);
         for f in feats {
             match f.look {
                 Look::Raised => {
                     fill(&mut app, &f.shape, prep, pl, off, (g + 35.0).min(250.0))?;
-                    outline(
-                        &mut app,
-                        &f.shape,
-                        prep,
-                        pl,
-                        off,
-                        (g - 60.0).max(20.0),
-                        line,
-                    )?;
+                    outline(&mut app, &f.shape, prep, pl, off, (g - 60.0).max(20.0), line)?;
                 }
                 Look::Recessed => {
                     fill(&mut app, &f.shape, prep, pl, off, (g - 55.0).max(25.0))?;
-                    outline(
-                        &mut app,
-                        &f.shape,
-                        prep,
-                        pl,
-                        off,
-                        (g - 85.0).max(15.0),
-                        line,
-                    )?;
+                    outline(&mut app, &f.shape, prep, pl, off, (g - 85.0).max(15.0), line)?;
                 }
                 Look::Blind => fill(&mut app, &f.shape, prep, pl, off, 30.0)?,
             }
         }
         // A bevel: the outer band of the material reads darker, as a cast edge does.
         let mut eroded = Mat::default();
-        let k = imgproc::get_structuring_element(
-            imgproc::MORPH_ELLIPSE,
-            Size::new(2 * line + 1, 2 * line + 1),
-            Point::new(-1, -1),
-        )?;
-        imgproc::erode(
-            &mask,
-            &mut eroded,
-            &k,
-            Point::new(-1, -1),
-            1,
-            core::BORDER_CONSTANT,
-            Scalar::all(0.0),
-        )?;
+        let k = imgproc::get_structuring_element(imgproc::MORPH_ELLIPSE, Size::new(2 * line + 1, 2 * line + 1), Point::new(-1, -1))?;
+        imgproc::erode(&mask, &mut eroded, &k, Point::new(-1, -1), 1, core::BORDER_CONSTANT, Scalar::all(0.0))?;
         // A rounded (forged) edge darkens towards the silhouette: Lambert shading of a quarter
         // round whose radius is the model's `rounded` width.
         let round_px = prep.model.rounded * pl.px_per_mm;
@@ -342,13 +285,7 @@ pub fn render(
             let mut bin = Mat::default();
             imgproc::threshold(&mask, &mut bin, 127.0, 255.0, imgproc::THRESH_BINARY)?;
             let mut d = Mat::default();
-            imgproc::distance_transform(
-                &bin,
-                &mut d,
-                imgproc::DIST_L2,
-                imgproc::DIST_MASK_PRECISE,
-                core::CV_32F,
-            )?;
+            imgproc::distance_transform(&bin, &mut d, imgproc::DIST_L2, imgproc::DIST_MASK_PRECISE, core::CV_32F)?;
             Some(d)
         } else {
             None
@@ -360,18 +297,8 @@ pub fn render(
         // A soft drop shadow on whatever lies below, offset down and right.
         let mut shadow = Mat::default();
         let sig = 0.6 * pl.px_per_mm;
-        imgproc::gaussian_blur(
-            &mask,
-            &mut shadow,
-            Size::new(0, 0),
-            sig,
-            sig,
-            core::BORDER_CONSTANT,
-        )?;
-        let (sdx, sdy) = (
-            (0.5 * pl.px_per_mm).round() as i32,
-            (0.7 * pl.px_per_mm).round() as i32,
-        );
+        imgproc::gaussian_blur(&mask, &mut shadow, Size::new(0, 0), sig, sig, core::BORDER_CONSTANT)?;
+        let (sdx, sdy) = ((0.5 * pl.px_per_mm).round() as i32, (0.7 * pl.px_per_mm).round() as i32);
         let m = mask.data_bytes()?;
         let e = eroded.data_bytes()?;
         let a = app.data_bytes()?;
@@ -412,9 +339,7 @@ pub fn render(
     for y in 0..height {
         for x in 0..width {
             let i = y * width + x;
-            let ramp = ((x as f32 - width as f32 / 2.0) * dx
-                + (y as f32 - height as f32 / 2.0) * dy)
-                / half;
+            let ramp = ((x as f32 - width as f32 / 2.0) * dx + (y as f32 - height as f32 / 2.0) * dy) / half;
             let mut v = scene[i] * light.exposure as f32 * (1.0 + light.gradient as f32 * ramp);
             if let Some((c, r, amp)) = light.glare {
                 let d2 = (x as f64 - c.x).powi(2) + (y as f64 - c.y).powi(2);
@@ -428,26 +353,11 @@ pub fn render(
     let mut mat = Mat::new_rows_cols_with_data(h, w, &scene)?.try_clone()?;
     if light.blur_sigma > 0.05 {
         let mut b = Mat::default();
-        imgproc::gaussian_blur(
-            &mat,
-            &mut b,
-            Size::new(0, 0),
-            light.blur_sigma,
-            light.blur_sigma,
-            core::BORDER_REPLICATE,
-        )?;
+        imgproc::gaussian_blur(&mat, &mut b, Size::new(0, 0), light.blur_sigma, light.blur_sigma, core::BORDER_REPLICATE)?;
         mat = b;
     }
-    let noise =
-        Normal::new(0.0f32, light.noise_sigma.max(0.0) as f32).expect("noise sigma is finite");
+    let noise = Normal::new(0.0f32, light.noise_sigma.max(0.0) as f32).expect("noise sigma is finite");
     let data = mat.data_typed::<f32>()?;
-    let out: Vec<u8> = data
-        .iter()
-        .map(|&v| (v + noise.sample(rng)).round().clamp(0.0, 255.0) as u8)
-        .collect();
-    Ok(GrayImage {
-        data: out,
-        width,
-        height,
-    })
+    let out: Vec<u8> = data.iter().map(|&v| (v + noise.sample(rng)).round().clamp(0.0, 255.0) as u8).collect();
+    Ok(GrayImage { data: out, width, height })
 }

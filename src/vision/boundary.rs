@@ -44,10 +44,7 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     let pts = resample_closed(coarse, p.spacing);
     let n = pts.len();
     if n < 8 {
-        return Refined {
-            outline: pts,
-            contrast: 0.0,
-        };
+        return Refined { outline: pts, contrast: 0.0 };
     }
     // Normals from a smoothed copy: the decimated outline is a staircase.
     let smooth = smooth_closed(&pts, 3);
@@ -60,18 +57,13 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     let raw = match sample(frame, &smooth, &normals, &ts) {
         Ok(v) => v,
         Err(_) => {
-            return Refined {
-                outline: pts,
-                contrast: 0.0,
-            };
+            return Refined { outline: pts, contrast: 0.0 };
         }
     };
     // Gaussian kernel along the profile.
     let sig = (p.profile_sigma / STEP).max(0.5);
     let kr = (3.0 * sig).ceil() as isize;
-    let kernel: Vec<f64> = (-kr..=kr)
-        .map(|i| (-(i as f64).powi(2) / (2.0 * sig * sig)).exp())
-        .collect();
+    let kernel: Vec<f64> = (-kr..=kr).map(|i| (-(i as f64).powi(2) / (2.0 * sig * sig)).exp()).collect();
     let ksum: f64 = kernel.iter().sum();
 
     // Smoothed profiles: averaged across neighbours (a running sum around the closed outline),
@@ -107,39 +99,18 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     // dark groove, so the inner ends alone may read as dark as the belt). Extreme = brightest for
     // parts brighter than the belt, darkest otherwise.
     let ends = (2.0 / STEP) as usize + 1;
-    let mut outer: Vec<f64> = (0..n)
-        .flat_map(|i| sm[(i + 1) * k - ends..(i + 1) * k].to_vec())
-        .collect();
+    let mut outer: Vec<f64> = (0..n).flat_map(|i| sm[(i + 1) * k - ends..(i + 1) * k].to_vec()).collect();
     let l_belt = median(&mut outer);
-    let mut hi: Vec<f64> = (0..n)
-        .map(|i| {
-            sm[i * k..i * k + half as usize]
-                .iter()
-                .cloned()
-                .fold(f64::MIN, f64::max)
-        })
-        .collect();
-    let mut lo: Vec<f64> = (0..n)
-        .map(|i| {
-            sm[i * k..i * k + half as usize]
-                .iter()
-                .cloned()
-                .fold(f64::MAX, f64::min)
-        })
-        .collect();
+    let mut hi: Vec<f64> = (0..n).map(|i| sm[i * k..i * k + half as usize].iter().cloned().fold(f64::MIN, f64::max)).collect();
+    let mut lo: Vec<f64> = (0..n).map(|i| sm[i * k..i * k + half as usize].iter().cloned().fold(f64::MAX, f64::min)).collect();
     let (bright, dark) = (median(&mut hi), median(&mut lo));
-    let l_part = if bright - l_belt >= l_belt - dark {
-        bright
-    } else {
-        dark
-    };
+    let l_part = if bright - l_belt >= l_belt - dark { bright } else { dark };
     let brighter = l_part >= l_belt;
     let sign = if brighter { 1.0 } else { -1.0 };
     // Smoothing divides white noise by sqrt(profiles averaged) and by sqrt(2 sqrt(pi) sigma) along
     // the profile; the level keeps four of those sigmas clear of the belt so noise rarely
     // crosses it, and at least `level` of the part's contrast.
-    let profile_noise =
-        noise / ((2 * m + 1) as f64).sqrt() / (2.0 * std::f64::consts::PI.sqrt() * sig).sqrt();
+    let profile_noise = noise / ((2 * m + 1) as f64).sqrt() / (2.0 * std::f64::consts::PI.sqrt() * sig).sqrt();
     let rise = (p.level * (l_part - l_belt).abs()).max(4.0 * profile_noise);
     // Each profile measures its own belt (clouds, shading, the part's own shadow), held within
     // a few spreads of the typical belt so that a neighbour or a speck cannot drag it.
@@ -150,39 +121,24 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     let mut offsets = vec![f64::NAN; n];
     for i in 0..n {
         let prof = &sm[i * k..(i + 1) * k];
-        let belt = (prof[k - ends..].iter().sum::<f64>() / ends as f64)
-            .clamp(l_belt - 3.0 * spread, l_belt + 3.0 * spread);
+        let belt = (prof[k - ends..].iter().sum::<f64>() / ends as f64).clamp(l_belt - 3.0 * spread, l_belt + 3.0 * spread);
         let level = belt + sign * rise;
         let is_part = |v: f64| if brighter { v >= level } else { v <= level };
         if let Some(j) = (0..k - 1).rev().find(|&j| is_part(prof[j])) {
             if j + 1 < k && !is_part(prof[j + 1]) {
                 let (a, b) = (prof[j], prof[j + 1]);
-                let frac = if (b - a).abs() > 1e-9 {
-                    ((level - a) / (b - a)).clamp(0.0, 1.0)
-                } else {
-                    0.5
-                };
+                let frac = if (b - a).abs() > 1e-9 { ((level - a) / (b - a)).clamp(0.0, 1.0) } else { 0.5 };
                 offsets[i] = ts[j] + frac * STEP;
             }
         }
     }
     let contrast = (l_part - l_belt).abs();
     clean_offsets(&mut offsets);
-    Refined {
-        outline: (0..n)
-            .map(|i| smooth[i] + normals[i].scale(offsets[i]))
-            .collect(),
-        contrast,
-    }
+    Refined { outline: (0..n).map(|i| smooth[i] + normals[i].scale(offsets[i])).collect(), contrast }
 }
 
 /// Samples the frame at `base[i] + normal[i] * t` for every t, row i of an n x k array.
-fn sample(
-    frame: GrayView<'_>,
-    base: &[Pt],
-    normals: &[Pt],
-    ts: &[f64],
-) -> opencv::Result<Vec<f64>> {
+fn sample(frame: GrayView<'_>, base: &[Pt], normals: &[Pt], ts: &[f64]) -> opencv::Result<Vec<f64>> {
     use opencv::core::{self, Mat, Scalar};
     use opencv::prelude::*;
     let (n, k) = (base.len(), ts.len());
@@ -196,19 +152,9 @@ fn sample(
     }
     let map_x = Mat::new_rows_cols_with_data(n as i32, k as i32, &mx)?;
     let map_y = Mat::new_rows_cols_with_data(n as i32, k as i32, &my)?;
-    let src = frame
-        .as_mat()
-        .map_err(|e| opencv::Error::new(core::StsError, e.to_string()))?;
+    let src = frame.as_mat().map_err(|e| opencv::Error::new(core::StsError, e.to_string()))?;
     let mut out = Mat::default();
-    opencv::imgproc::remap(
-        &src,
-        &mut out,
-        &map_x,
-        &map_y,
-        opencv::imgproc::INTER_LINEAR,
-        core::BORDER_REPLICATE,
-        Scalar::all(0.0),
-    )?;
+    opencv::imgproc::remap(&src, &mut out, &map_x, &map_y, opencv::imgproc::INTER_LINEAR, core::BORDER_REPLICATE, Scalar::all(0.0))?;
     // The 8-bit result is rounded to whole gray levels (sigma 0.3), negligible beside the
     // averaging that follows and far cheaper than converting the frame to float.
     let mut outf = Mat::default();
@@ -291,11 +237,7 @@ pub fn noise_sigma(frame: GrayView<'_>, exclude: &[(Pt, Pt)]) -> f64 {
         if acc * 2 >= count {
             // Interpolate within the bin so small noise levels are not stuck at integers.
             let before = acc - c;
-            let frac = if *c > 0 {
-                (count as f64 / 2.0 - before as f64) / *c as f64
-            } else {
-                0.5
-            };
+            let frac = if *c > 0 { (count as f64 / 2.0 - before as f64) / *c as f64 } else { 0.5 };
             med = v as f64 - 0.5 + frac;
             break;
         }
@@ -340,24 +282,11 @@ mod tests {
                 Pt::new(98.0 + 63.0 * a.cos(), 101.0 + 63.0 * a.sin())
             })
             .collect();
-        let p = RefineParams {
-            spacing: 2.0,
-            search: 8.0,
-            profile_sigma: 1.0,
-            across: 2,
-            level: 0.5,
-        };
+        let p = RefineParams { spacing: 2.0, search: 8.0, profile_sigma: 1.0, across: 2, level: 0.5 };
         let out = refine(img.view().unwrap(), &coarse, 0.0, &p);
-        assert!(
-            (out.contrast - 160.0).abs() < 40.0,
-            "contrast {}",
-            out.contrast
-        );
+        assert!((out.contrast - 160.0).abs() < 40.0, "contrast {}", out.contrast);
         let (area, c) = area_centroid(&out.outline);
-        assert!(
-            (c.x - 97.3).abs() < 0.05 && (c.y - 101.8).abs() < 0.05,
-            "centroid {c:?}"
-        );
+        assert!((c.x - 97.3).abs() < 0.05 && (c.y - 101.8).abs() < 0.05, "centroid {c:?}");
         let r = (area.abs() / std::f64::consts::PI).sqrt();
         assert!((r - 60.0).abs() < 0.2, "radius {r}");
     }
@@ -367,17 +296,14 @@ mod tests {
         use rand::SeedableRng;
         use rand_distr::{Distribution, Normal};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        for sigma in [5.0, 20.0] {
+        for sigma in [5.0f64, 20.0] {
             let nd = Normal::new(0.0, sigma).unwrap();
             let mut img = GrayImage::new(400, 300, 0);
             for v in img.data.iter_mut() {
                 *v = (100.0 + nd.sample(&mut rng)).round().clamp(0.0, 255.0) as u8;
             }
             let est = noise_sigma(img.view().unwrap(), &[]);
-            assert!(
-                (est - sigma).abs() < 0.1 * sigma,
-                "sigma {sigma} estimated {est}"
-            );
+            assert!((est - sigma).abs() < 0.1 * sigma, "sigma {sigma} estimated {est}");
         }
     }
 }

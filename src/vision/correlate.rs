@@ -44,27 +44,16 @@ impl std::fmt::Debug for Correlator {
 impl Correlator {
     pub fn new(n: usize) -> Self {
         let mut planner = FftPlanner::new();
-        Self {
-            n,
-            fwd: planner.plan_fft_forward(n),
-            inv: planner.plan_fft_inverse(n),
-        }
+        Self { n, fwd: planner.plan_fft_forward(n), inv: planner.plan_fft_inverse(n) }
     }
     pub fn bins(&self) -> usize {
         self.n
     }
 
     pub fn spectrum(&self, signal: &[f64]) -> Spectrum {
-        assert_eq!(
-            signal.len(),
-            self.n,
-            "signal length must equal the correlator's bins"
-        );
+        assert_eq!(signal.len(), self.n, "signal length must equal the correlator's bins");
         let mean = signal.iter().sum::<f64>() / self.n as f64;
-        let mut bins: Vec<Complex<f64>> = signal
-            .iter()
-            .map(|&v| Complex::new(v - mean, 0.0))
-            .collect();
+        let mut bins: Vec<Complex<f64>> = signal.iter().map(|&v| Complex::new(v - mean, 0.0)).collect();
         let energy = bins.iter().map(|c| c.re * c.re).sum();
         self.fwd.process(&mut bins);
         Spectrum { mean, energy, bins }
@@ -73,23 +62,12 @@ impl Correlator {
     /// Best alignment of `part` onto `template`, with parabolic sub-bin refinement of the peak.
     pub fn align(&self, part: &Spectrum, template: &Spectrum) -> Alignment {
         let n = self.n;
-        let mut prod: Vec<Complex<f64>> = part
-            .bins
-            .iter()
-            .zip(&template.bins)
-            .map(|(a, b)| a * b.conj())
-            .collect();
+        let mut prod: Vec<Complex<f64>> = part.bins.iter().zip(&template.bins).map(|(a, b)| a * b.conj()).collect();
         self.inv.process(&mut prod);
         let nf = n as f64;
         // c(s) = sum_k a(k+s) b(k); rustfft's inverse is unnormalised.
-        let d =
-            |s: usize| (part.energy + template.energy - 2.0 * prod[s % n].re / nf).max(0.0) / nf;
-        let (best, _) = (0..n)
-            .map(|s| (s, d(s)))
-            .fold(
-                (0, f64::INFINITY),
-                |acc, (s, v)| if v < acc.1 { (s, v) } else { acc },
-            );
+        let d = |s: usize| (part.energy + template.energy - 2.0 * prod[s % n].re / nf).max(0.0) / nf;
+        let (best, _) = (0..n).map(|s| (s, d(s))).fold((0, f64::INFINITY), |acc, (s, v)| if v < acc.1 { (s, v) } else { acc });
         let (dm, d0, dp) = (d(best + n - 1), d(best), d(best + 1));
         let den = dm - 2.0 * d0 + dp;
         let (delta, dmin) = if den > 0.0 {
@@ -98,11 +76,7 @@ impl Correlator {
         } else {
             (0.0, d0)
         };
-        Alignment {
-            shift: (best as f64 + delta).rem_euclid(nf),
-            rms: dmin.sqrt(),
-            scale: (part.mean - template.mean).exp(),
-        }
+        Alignment { shift: (best as f64 + delta).rem_euclid(nf), rms: dmin.sqrt(), scale: (part.mean - template.mean).exp() }
     }
 }
 

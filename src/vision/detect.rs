@@ -80,7 +80,8 @@ fn to_frame(v: i32, f: usize) -> f64 {
 }
 
 /// Median Sobel (L1) gradient magnitude of an 8-bit image, from central differences on every
-/// other row: the typical gradient of the belt's texture and noise, which covers most of a frame.
+/// fourth row and second column: the typical gradient of the belt's texture and noise, which
+/// covers most of a frame.
 fn median_gradient(img: &Mat) -> Result<f64, FrameError> {
     let (w, h) = (img.cols() as usize, img.rows() as usize);
     if w < 3 || h < 3 {
@@ -89,8 +90,8 @@ fn median_gradient(img: &Mat) -> Result<f64, FrameError> {
     let d = img.data_bytes()?;
     let mut hist = vec![0u32; 2048];
     let mut count = 0u32;
-    for y in (1..h - 1).step_by(2) {
-        for x in 1..w - 1 {
+    for y in (1..h - 1).step_by(4) {
+        for x in (1..w - 1).step_by(2) {
             let gx = (d[y * w + x + 1] as i32 - d[y * w + x - 1] as i32).unsigned_abs();
             let gy = (d[(y + 1) * w + x] as i32 - d[(y - 1) * w + x] as i32).unsigned_abs();
             // Sobel's kernels weigh a central difference about four times.
@@ -127,68 +128,23 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
         // fifth of the cost of a full block average (measured), and the blur below removes the
         // aliasing that would otherwise matter.
         let crop = Mat::roi(&full, Rect::new(0, 0, (sw * f) as i32, (sh * f) as i32))?;
-        imgproc::resize(
-            &crop,
-            &mut small,
-            Size::new(sw as i32, sh as i32),
-            0.0,
-            0.0,
-            imgproc::INTER_LINEAR,
-        )?;
+        imgproc::resize(&crop, &mut small, Size::new(sw as i32, sh as i32), 0.0, 0.0, imgproc::INTER_LINEAR)?;
     }
     let mut blurred = Mat::default();
     // Kernel to +-2.5 sigma (OpenCV's default for 8-bit goes to +-3 sigma at twice the cost for
     // weights below 2 %).
     let ks = 2 * (2.5 * p.blur_sigma).ceil() as i32 + 1;
-    imgproc::gaussian_blur(
-        &small,
-        &mut blurred,
-        Size::new(ks, ks),
-        p.blur_sigma,
-        p.blur_sigma,
-        core::BORDER_REPLICATE,
-    )?;
+    imgproc::gaussian_blur(&small, &mut blurred, Size::new(ks, ks), p.blur_sigma, p.blur_sigma, core::BORDER_REPLICATE)?;
     let mut scratch = Mat::default();
-    let otsu = imgproc::threshold(
-        &blurred,
-        &mut scratch,
-        0.0,
-        255.0,
-        imgproc::THRESH_BINARY | imgproc::THRESH_OTSU,
-    )?;
+    let otsu = imgproc::threshold(&blurred, &mut scratch, 0.0, 255.0, imgproc::THRESH_BINARY | imgproc::THRESH_OTSU)?;
     let auto = otsu.min((6.0 * median_gradient(&blurred)?).max(24.0));
     let mut edges = Mat::default();
-    imgproc::canny(
-        &blurred,
-        &mut edges,
-        p.canny_low_ratio * auto,
-        auto,
-        3,
-        false,
-    )?;
-    let kernel = imgproc::get_structuring_element(
-        imgproc::MORPH_ELLIPSE,
-        Size::new(p.closing, p.closing),
-        Point::new(-1, -1),
-    )?;
+    imgproc::canny(&blurred, &mut edges, p.canny_low_ratio * auto, auto, 3, false)?;
+    let kernel = imgproc::get_structuring_element(imgproc::MORPH_ELLIPSE, Size::new(p.closing, p.closing), Point::new(-1, -1))?;
     let mut dilated = Mat::default();
-    imgproc::dilate(
-        &edges,
-        &mut dilated,
-        &kernel,
-        Point::new(-1, -1),
-        1,
-        core::BORDER_CONSTANT,
-        core::Scalar::all(0.0),
-    )?;
+    imgproc::dilate(&edges, &mut dilated, &kernel, Point::new(-1, -1), 1, core::BORDER_CONSTANT, core::Scalar::all(0.0))?;
     let mut contours: Vector<Vector<Point>> = Vector::new();
-    imgproc::find_contours(
-        &dilated,
-        &mut contours,
-        imgproc::RETR_EXTERNAL,
-        imgproc::CHAIN_APPROX_NONE,
-        Point::new(0, 0),
-    )?;
+    imgproc::find_contours(&dilated, &mut contours, imgproc::RETR_EXTERNAL, imgproc::CHAIN_APPROX_NONE, Point::new(0, 0))?;
 
     let min_coarse_area = p.min_area / (f * f) as f64;
     let mut blobs = Vec::new();
@@ -198,18 +154,10 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
             continue;
         }
         let r = imgproc::bounding_rect(&c)?;
-        let touches_border = r.x <= 1
-            || r.y <= 1
-            || r.x + r.width >= sw as i32 - 1
-            || r.y + r.height >= sh as i32 - 1;
+        let touches_border = r.x <= 1 || r.y <= 1 || r.x + r.width >= sw as i32 - 1 || r.y + r.height >= sh as i32 - 1;
         // Fill the dilated region and erode it back: the closing of the part's edge map.
         let m = 2 + p.closing;
-        let mut mask = Mat::new_rows_cols_with_default(
-            r.height + 2 * m,
-            r.width + 2 * m,
-            core::CV_8UC1,
-            core::Scalar::all(0.0),
-        )?;
+        let mut mask = Mat::new_rows_cols_with_default(r.height + 2 * m, r.width + 2 * m, core::CV_8UC1, core::Scalar::all(0.0))?;
         let mut one: Vector<Vector<Point>> = Vector::new();
         one.push(c.clone());
         imgproc::draw_contours(
@@ -224,23 +172,9 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
             Point::new(m - r.x, m - r.y),
         )?;
         let mut closed = Mat::default();
-        imgproc::erode(
-            &mask,
-            &mut closed,
-            &kernel,
-            Point::new(-1, -1),
-            1,
-            core::BORDER_CONSTANT,
-            core::Scalar::all(0.0),
-        )?;
+        imgproc::erode(&mask, &mut closed, &kernel, Point::new(-1, -1), 1, core::BORDER_CONSTANT, core::Scalar::all(0.0))?;
         let mut inner: Vector<Vector<Point>> = Vector::new();
-        imgproc::find_contours(
-            &closed,
-            &mut inner,
-            imgproc::RETR_EXTERNAL,
-            imgproc::CHAIN_APPROX_NONE,
-            Point::new(r.x - m, r.y - m),
-        )?;
+        imgproc::find_contours(&closed, &mut inner, imgproc::RETR_EXTERNAL, imgproc::CHAIN_APPROX_NONE, Point::new(r.x - m, r.y - m))?;
         let Some(best) = inner.iter().max_by(|a, b| {
             let aa = imgproc::contour_area(a, false).unwrap_or(0.0);
             let bb = imgproc::contour_area(b, false).unwrap_or(0.0);
@@ -251,28 +185,12 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
         if best.len() < 8 {
             continue;
         }
-        let outline: Vec<Pt> = best
-            .iter()
-            .map(|q| Pt::new(to_frame(q.x, f), to_frame(q.y, f)))
-            .collect();
+        let outline: Vec<Pt> = best.iter().map(|q| Pt::new(to_frame(q.x, f), to_frame(q.y, f))).collect();
         let (a, _) = area_centroid(&outline);
         if a.abs() < p.min_area {
             continue;
         }
-        blobs.push(Blob {
-            outline,
-            area: a.abs(),
-            touches_border,
-            coarse_rect: r,
-            mask,
-            mask_origin: Point::new(r.x - m, r.y - m),
-        });
+        blobs.push(Blob { outline, area: a.abs(), touches_border, coarse_rect: r, mask, mask_origin: Point::new(r.x - m, r.y - m) });
     }
-    Ok(Coarse {
-        factor: f,
-        small,
-        edges,
-        auto_threshold: auto,
-        blobs,
-    })
+    Ok(Coarse { factor: f, small, edges, auto_threshold: auto, blobs })
 }

@@ -22,12 +22,7 @@ pub enum FrameError {
     #[error("frame pixel depth {depth} is not supported; expected 8-bit or 16-bit unsigned")]
     Depth { depth: String },
     #[error("frame buffer holds {len} bytes; {width} x {height} needs {needed}")]
-    BufferSize {
-        len: usize,
-        width: usize,
-        height: usize,
-        needed: usize,
-    },
+    BufferSize { len: usize, width: usize, height: usize, needed: usize },
     #[error("OpenCV failed on the frame: {0}")]
     OpenCv(String),
 }
@@ -60,21 +55,12 @@ impl<'a> GrayView<'a> {
         }
         let needed = width.checked_mul(height).unwrap_or(usize::MAX);
         if data.len() != needed {
-            return Err(FrameError::BufferSize {
-                len: data.len(),
-                width,
-                height,
-                needed,
-            });
+            return Err(FrameError::BufferSize { len: data.len(), width, height, needed });
         }
         if width < MIN_SIDE || height < MIN_SIDE {
             return Err(FrameError::TooSmall { width, height });
         }
-        Ok(Self {
-            data,
-            width,
-            height,
-        })
+        Ok(Self { data, width, height })
     }
     pub fn width(&self) -> usize {
         self.width
@@ -113,11 +99,7 @@ impl<'a> GrayView<'a> {
     }
     /// A zero-copy OpenCV header over this view, for calling OpenCV algorithms.
     pub fn as_mat(&self) -> Result<opencv::boxed_ref::BoxedRef<'a, Mat>, FrameError> {
-        Ok(Mat::new_rows_cols_with_data(
-            self.height as i32,
-            self.width as i32,
-            self.data,
-        )?)
+        Ok(Mat::new_rows_cols_with_data(self.height as i32, self.width as i32, self.data)?)
     }
 }
 
@@ -137,11 +119,7 @@ impl std::fmt::Debug for GrayImage {
 
 impl GrayImage {
     pub fn new(width: usize, height: usize, fill: u8) -> Self {
-        Self {
-            data: vec![fill; width * height],
-            width,
-            height,
-        }
+        Self { data: vec![fill; width * height], width, height }
     }
     pub fn view(&self) -> Result<GrayView<'_>, FrameError> {
         GrayView::new(&self.data, self.width, self.height)
@@ -156,10 +134,7 @@ impl GrayImage {
         }
         let (w, h) = (mat.cols() as usize, mat.rows() as usize);
         if w < MIN_SIDE || h < MIN_SIDE {
-            return Err(FrameError::TooSmall {
-                width: w,
-                height: h,
-            });
+            return Err(FrameError::TooSmall { width: w, height: h });
         }
         let channels = mat.channels();
         let depth = mat.depth();
@@ -171,19 +146,10 @@ impl GrayImage {
                 // The full 16-bit range maps to 0..255: cameras deliver 10/12-bit data left-aligned
                 // or right-aligned; scale by the actual maximum so both keep their contrast.
                 let mut maxv = 0.0;
-                core::min_max_loc(
-                    &cur.reshape(1, 0)?,
-                    None,
-                    Some(&mut maxv),
-                    None,
-                    None,
-                    &core::no_array(),
-                )?;
+                core::min_max_loc(&cur.reshape(1, 0)?, None, Some(&mut maxv), None, None, &core::no_array())?;
                 let scale = if maxv > 0.0 { 255.0 / maxv } else { 1.0 };
                 cur.convert_to(&mut out, core::CV_8U, scale, 0.0)?;
-                notes.push(format!(
-                    "16-bit frame scaled to 8 bits (x{scale:.5}, max {maxv})"
-                ));
+                notes.push(format!("16-bit frame scaled to 8 bits (x{scale:.5}, max {maxv})"));
                 cur = out;
             }
             d => {
@@ -195,40 +161,23 @@ impl GrayImage {
                     core::CV_64F => "64-bit float",
                     _ => "unknown",
                 };
-                return Err(FrameError::Depth {
-                    depth: name.to_string(),
-                });
+                return Err(FrameError::Depth { depth: name.to_string() });
             }
         }
         match channels {
             1 => {}
             3 | 4 => {
                 let mut out = Mat::default();
-                let code = if channels == 3 {
-                    opencv::imgproc::COLOR_BGR2GRAY
-                } else {
-                    opencv::imgproc::COLOR_BGRA2GRAY
-                };
+                let code = if channels == 3 { opencv::imgproc::COLOR_BGR2GRAY } else { opencv::imgproc::COLOR_BGRA2GRAY };
                 opencv::imgproc::cvt_color(&cur, &mut out, code, 0)?;
                 notes.push(format!("{channels}-channel frame converted to gray"));
                 cur = out;
             }
             c => return Err(FrameError::Channels { channels: c }),
         }
-        let cur = if cur.is_continuous() {
-            cur
-        } else {
-            cur.try_clone()?
-        };
+        let cur = if cur.is_continuous() { cur } else { cur.try_clone()? };
         let data = cur.data_bytes()?.to_vec();
-        Ok((
-            Self {
-                data,
-                width: w,
-                height: h,
-            },
-            notes,
-        ))
+        Ok((Self { data, width: w, height: h }, notes))
     }
 
     /// An OpenCV copy of this image (for drawing and encoding at the edges).
@@ -248,36 +197,21 @@ mod tests {
         let e = GrayView::new(&[0; 10], 5, 5).unwrap_err();
         assert!(e.to_string().contains("10 bytes"), "{e}");
         let one = [7u8];
-        assert!(matches!(
-            GrayView::new(&one, 1, 1),
-            Err(FrameError::TooSmall { .. })
-        ));
+        assert!(matches!(GrayView::new(&one, 1, 1), Err(FrameError::TooSmall { .. })));
     }
 
     #[test]
     fn converts_colour_and_16_bit() {
-        let bgr = Mat::new_rows_cols_with_default(
-            40,
-            50,
-            core::CV_8UC3,
-            core::Scalar::new(10.0, 20.0, 30.0, 0.0),
-        )
-        .unwrap();
+        let bgr = Mat::new_rows_cols_with_default(40, 50, core::CV_8UC3, core::Scalar::new(10.0, 20.0, 30.0, 0.0)).unwrap();
         let (g, notes) = GrayImage::from_mat(&bgr).unwrap();
         assert_eq!((g.width, g.height), (50, 40));
         assert_eq!(notes.len(), 1);
-        let deep =
-            Mat::new_rows_cols_with_default(40, 40, core::CV_16UC1, core::Scalar::all(4000.0))
-                .unwrap();
+        let deep = Mat::new_rows_cols_with_default(40, 40, core::CV_16UC1, core::Scalar::all(4000.0)).unwrap();
         let (g, notes) = GrayImage::from_mat(&deep).unwrap();
         assert_eq!(g.data[0], 255);
         assert!(notes[0].contains("16-bit"));
-        let float = Mat::new_rows_cols_with_default(40, 40, core::CV_32FC1, core::Scalar::all(1.0))
-            .unwrap();
-        assert!(matches!(
-            GrayImage::from_mat(&float),
-            Err(FrameError::Depth { .. })
-        ));
+        let float = Mat::new_rows_cols_with_default(40, 40, core::CV_32FC1, core::Scalar::all(1.0)).unwrap();
+        assert!(matches!(GrayImage::from_mat(&float), Err(FrameError::Depth { .. })));
     }
 
     #[test]

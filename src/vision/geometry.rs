@@ -110,10 +110,7 @@ pub fn area_centroid(poly: &[Pt]) -> (f64, Pt) {
     if a2.abs() < 1e-12 {
         return (0.0, centroid_of_points(poly));
     }
-    (
-        a2 / 2.0,
-        Pt::new(o.x + cx / (3.0 * a2), o.y + cy / (3.0 * a2)),
-    )
+    (a2 / 2.0, Pt::new(o.x + cx / (3.0 * a2), o.y + cy / (3.0 * a2)))
 }
 
 fn centroid_of_points(pts: &[Pt]) -> Pt {
@@ -153,11 +150,7 @@ pub fn resample_closed(poly: &[Pt], spacing: f64) -> Vec<Pt> {
         }
         let a = poly[seg];
         let b = poly[(seg + 1) % n];
-        let t = if seg_len > 0.0 {
-            ((s - seg_start) / seg_len).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
+        let t = if seg_len > 0.0 { ((s - seg_start) / seg_len).clamp(0.0, 1.0) } else { 0.0 };
         out.push(a + (b - a).scale(t));
     }
     out
@@ -203,11 +196,7 @@ pub fn outward_normals(poly: &[Pt], half: usize) -> Vec<Pt> {
 pub fn point_segment(p: Pt, a: Pt, b: Pt) -> (f64, f64) {
     let ab = b - a;
     let l2 = ab.dot(ab);
-    let t = if l2 > 0.0 {
-        ((p - a).dot(ab) / l2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
+    let t = if l2 > 0.0 { ((p - a).dot(ab) / l2).clamp(0.0, 1.0) } else { 0.0 };
     ((a + ab.scale(t) - p).norm(), t)
 }
 
@@ -253,12 +242,7 @@ mod tests {
     use super::*;
 
     fn square(side: f64) -> Vec<Pt> {
-        vec![
-            Pt::new(0.0, 0.0),
-            Pt::new(side, 0.0),
-            Pt::new(side, side),
-            Pt::new(0.0, side),
-        ]
+        vec![Pt::new(0.0, 0.0), Pt::new(side, 0.0), Pt::new(side, side), Pt::new(0.0, side)]
     }
 
     #[test]
@@ -289,12 +273,7 @@ mod tests {
 
     #[test]
     fn similarity_round_trips_and_rotates_counter_clockwise_as_displayed() {
-        let t = Similarity {
-            from: Pt::new(1.0, 2.0),
-            to: Pt::new(10.0, 20.0),
-            angle_rad: 0.5,
-            scale: 1.3,
-        };
+        let t = Similarity { from: Pt::new(1.0, 2.0), to: Pt::new(10.0, 20.0), angle_rad: 0.5, scale: 1.3 };
         let q = Pt::new(4.0, -3.0);
         let back = t.invert(t.apply(q));
         assert!((back - q).norm() < 1e-9);

@@ -95,13 +95,7 @@ pub fn part_segments(
             let roi = Mat::roi(small, r)?;
             let mut lsd = imgproc::create_line_segment_detector_def()?;
             let mut widths = Mat::default();
-            lsd.detect(
-                &roi,
-                &mut lines,
-                &mut widths,
-                &mut core::no_array(),
-                &mut core::no_array(),
-            )?;
+            lsd.detect(&roi, &mut lines, &mut widths, &mut core::no_array(), &mut core::no_array())?;
             if widths.empty() {
                 vec![1.0; lines.len()]
             } else {
@@ -117,32 +111,16 @@ pub fn part_segments(
             // Aperture 0: the input is taken as an edge map, no second Canny. No merging of
             // collinear pieces: it triples the cost and the confidence tolerates fragments.
             let min_coarse = (min_len / f).max(3.0) as i32;
-            let mut fld = opencv::ximgproc::create_fast_line_detector(
-                min_coarse,
-                std::f32::consts::SQRT_2,
-                50.0,
-                50.0,
-                0,
-                false,
-            )?;
+            let mut fld = opencv::ximgproc::create_fast_line_detector(min_coarse, std::f32::consts::SQRT_2, 50.0, 50.0, 0, false)?;
             fld.detect(&roi, &mut lines)?;
             vec![1.0; lines.len()]
         }
     };
     let off = (f - 1.0) / 2.0;
-    let map = |x: f32, y: f32, ox: i32, oy: i32| {
-        Pt::new(
-            (x as f64 + ox as f64) * f + off,
-            (y as f64 + oy as f64) * f + off,
-        )
-    };
+    let map = |x: f32, y: f32, ox: i32, oy: i32| Pt::new((x as f64 + ox as f64) * f + off, (y as f64 + oy as f64) * f + off);
     let mut out = Vec::new();
     for (i, l) in lines.iter().enumerate() {
-        let s = Segment {
-            a: map(l[0], l[1], x0, y0),
-            b: map(l[2], l[3], x0, y0),
-            width: widths.get(i).copied().unwrap_or(1.0) * f,
-        };
+        let s = Segment { a: map(l[0], l[1], x0, y0), b: map(l[2], l[3], x0, y0), width: widths.get(i).copied().unwrap_or(1.0) * f };
         if s.len() < min_len {
             continue;
         }
@@ -155,10 +133,7 @@ pub fn part_segments(
 
 /// The orientation axis: the segment with the largest support area (length x width).
 pub fn orientation_axis(segments: &[Segment]) -> Option<Segment> {
-    segments
-        .iter()
-        .copied()
-        .max_by(|a, b| a.support().total_cmp(&b.support()))
+    segments.iter().copied().max_by(|a, b| a.support().total_cmp(&b.support()))
 }
 
 /// The LFI descriptor: segment midpoints in the log-polar frame at `center` aligned to the axis
@@ -168,11 +143,7 @@ pub fn descriptor(segments: &[Segment], center: Pt, theta: f64) -> Vec<LineFeatu
         .iter()
         .map(|s| {
             let v = s.mid() - center;
-            LineFeature {
-                r: v.norm().max(1e-9).ln(),
-                phi: (v.display_angle() - theta).rem_euclid(std::f64::consts::TAU),
-                len: s.len(),
-            }
+            LineFeature { r: v.norm().max(1e-9).ln(), phi: (v.display_angle() - theta).rem_euclid(std::f64::consts::TAU), len: s.len() }
         })
         .collect();
     d.sort_by(|a, b| a.r.total_cmp(&b.r).then(a.phi.total_cmp(&b.phi)));
@@ -212,11 +183,7 @@ mod tests {
 
     #[test]
     fn axis_is_the_segment_with_most_support() {
-        let s = |x: f64, w: f64| Segment {
-            a: Pt::new(0.0, 0.0),
-            b: Pt::new(x, 0.0),
-            width: w,
-        };
+        let s = |x: f64, w: f64| Segment { a: Pt::new(0.0, 0.0), b: Pt::new(x, 0.0), width: w };
         let segs = [s(10.0, 3.0), s(20.0, 1.0), s(12.0, 2.0)];
         assert_eq!(orientation_axis(&segs).unwrap(), segs[0]);
     }
@@ -225,16 +192,8 @@ mod tests {
     fn descriptor_is_sorted_and_rotation_relative() {
         let c = Pt::new(100.0, 100.0);
         let segs = [
-            Segment {
-                a: Pt::new(140.0, 90.0),
-                b: Pt::new(140.0, 110.0),
-                width: 2.0,
-            },
-            Segment {
-                a: Pt::new(100.0, 80.0),
-                b: Pt::new(110.0, 80.0),
-                width: 2.0,
-            },
+            Segment { a: Pt::new(140.0, 90.0), b: Pt::new(140.0, 110.0), width: 2.0 },
+            Segment { a: Pt::new(100.0, 80.0), b: Pt::new(110.0, 80.0), width: 2.0 },
         ];
         let d = descriptor(&segs, c, 0.0);
         assert!(d[0].r < d[1].r);
@@ -246,22 +205,10 @@ mod tests {
 
     #[test]
     fn segment_error_measures_offset_and_rejects_crossing_lines() {
-        let found = [Segment {
-            a: Pt::new(0.0, 0.0),
-            b: Pt::new(100.0, 0.0),
-            width: 2.0,
-        }];
-        let near = Segment {
-            a: Pt::new(10.0, 2.0),
-            b: Pt::new(60.0, 2.0),
-            width: 2.0,
-        };
+        let found = [Segment { a: Pt::new(0.0, 0.0), b: Pt::new(100.0, 0.0), width: 2.0 }];
+        let near = Segment { a: Pt::new(10.0, 2.0), b: Pt::new(60.0, 2.0), width: 2.0 };
         assert!((segment_error(&near, &found, 100.0) - 0.02).abs() < 1e-12);
-        let across = Segment {
-            a: Pt::new(50.0, -20.0),
-            b: Pt::new(50.0, 20.0),
-            width: 2.0,
-        };
+        let across = Segment { a: Pt::new(50.0, -20.0), b: Pt::new(50.0, 20.0), width: 2.0 };
         assert_eq!(segment_error(&across, &found, 100.0), 1.0);
     }
 }

@@ -212,13 +212,7 @@ impl Params {
     }
     pub(crate) fn refine_params(&self, factor: usize) -> RefineParams {
         // The closing leaves the coarse outline within about one decimated pixel of the edge.
-        RefineParams {
-            spacing: 2.5,
-            search: 3.0 * factor as f64 + 4.0,
-            profile_sigma: self.blur_sigma,
-            across: 2,
-            level: self.edge_level,
-        }
+        RefineParams { spacing: 2.5, search: 3.0 * factor as f64 + 4.0, profile_sigma: self.blur_sigma, across: 2, level: self.edge_level }
     }
 }
 
@@ -279,11 +273,7 @@ pub enum EstimatorError {
     #[error("the knowledge base has no templates; enroll at least one type and face")]
     Empty,
     #[error("parameter {name} = {value} is out of range ({expected})")]
-    Param {
-        name: &'static str,
-        value: String,
-        expected: &'static str,
-    },
+    Param { name: &'static str, value: String, expected: &'static str },
 }
 
 /// Estimates part poses in frames against a fixed set of templates.
@@ -308,58 +298,17 @@ impl Estimator {
             return Err(EstimatorError::Empty);
         }
         let check = |ok: bool, name: &'static str, value: String, expected: &'static str| {
-            if ok {
-                Ok(())
-            } else {
-                Err(EstimatorError::Param {
-                    name,
-                    value,
-                    expected,
-                })
-            }
+            if ok { Ok(()) } else { Err(EstimatorError::Param { name, value, expected }) }
         };
-        check(
-            (1..=8).contains(&params.coarse_factor),
-            "coarse_factor",
-            params.coarse_factor.to_string(),
-            "1..=8",
-        )?;
-        check(
-            params.blur_sigma > 0.0 && params.blur_sigma <= 10.0,
-            "blur_sigma",
-            params.blur_sigma.to_string(),
-            "0 < sigma <= 10",
-        )?;
-        check(
-            (0.0..=1.0).contains(&params.accept_threshold),
-            "accept_threshold",
-            params.accept_threshold.to_string(),
-            "0..=1",
-        )?;
-        check(
-            params.signal_bins >= 64,
-            "signal_bins",
-            params.signal_bins.to_string(),
-            ">= 64",
-        )?;
-        check(
-            params.candidates >= 1,
-            "candidates",
-            params.candidates.to_string(),
-            ">= 1",
-        )?;
-        let smallest = templates
-            .iter()
-            .map(|t| t.area)
-            .fold(f64::INFINITY, f64::min);
+        check((1..=8).contains(&params.coarse_factor), "coarse_factor", params.coarse_factor.to_string(), "1..=8")?;
+        check(params.blur_sigma > 0.0 && params.blur_sigma <= 10.0, "blur_sigma", params.blur_sigma.to_string(), "0 < sigma <= 10")?;
+        check((0.0..=1.0).contains(&params.accept_threshold), "accept_threshold", params.accept_threshold.to_string(), "0..=1")?;
+        check(params.signal_bins >= 64, "signal_bins", params.signal_bins.to_string(), ">= 64")?;
+        check(params.candidates >= 1, "candidates", params.candidates.to_string(), ">= 1")?;
+        let smallest = templates.iter().map(|t| t.area).fold(f64::INFINITY, f64::min);
         let largest = templates.iter().map(|t| t.area).fold(0.0, f64::max);
         let min_area = params.min_area.unwrap_or(0.25 * smallest);
-        Ok(Self {
-            lib: Library::new(templates, params.signal_bins),
-            params,
-            min_area,
-            max_template_area: largest,
-        })
+        Ok(Self { lib: Library::new(templates, params.signal_bins), params, min_area, max_template_area: largest })
     }
 
     pub fn params(&self) -> &Params {
@@ -385,11 +334,7 @@ impl Estimator {
         }
         parts.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
         tm.total = ms(t0);
-        Ok(FrameEstimate {
-            parts,
-            noise_sigma: noise,
-            timings: tm,
-        })
+        Ok(FrameEstimate { parts, noise_sigma: noise, timings: tm })
     }
 
     fn estimate_part(
@@ -422,8 +367,7 @@ impl Estimator {
             descriptor: Vec::new(),
         };
         let t = Instant::now();
-        let refined =
-            boundary::refine(frame, &blob.outline, noise, &p.refine_params(coarse.factor));
+        let refined = boundary::refine(frame, &blob.outline, noise, &p.refine_params(coarse.factor));
         let outline = refined.outline;
         let (area, centroid) = area_centroid(&outline);
         let area = area.abs();
@@ -435,36 +379,22 @@ impl Estimator {
         // whole part may reach the edge through the closing, so the refined outline decides).
         let (lo, hi) = bounds(&outline);
         let edge = 3.0;
-        if lo.x < edge
-            || lo.y < edge
-            || hi.x > frame.width() as f64 - 1.0 - edge
-            || hi.y > frame.height() as f64 - 1.0 - edge
-        {
+        if lo.x < edge || lo.y < edge || hi.x > frame.width() as f64 - 1.0 - edge || hi.y > frame.height() as f64 - 1.0 - edge {
             est.reason = Reason::AtBorder;
-            est.detail = format!(
-                "outline reaches the frame border (x {:.1}..{:.1}, y {:.1}..{:.1})",
-                lo.x, hi.x, lo.y, hi.y
-            );
+            est.detail = format!("outline reaches the frame border (x {:.1}..{:.1}, y {:.1}..{:.1})", lo.x, hi.x, lo.y, hi.y);
             return Ok(est);
         }
         let max_scale2 = p.scale_range.1 * p.scale_range.1;
         if area > p.touching_area_ratio * self.max_template_area * max_scale2 {
             est.reason = Reason::Touching;
-            est.detail =
-                format!("region of {area:.0} px^2 is larger than any enrolled part could be");
+            est.detail = format!("region of {area:.0} px^2 is larger than any enrolled part could be");
             return Ok(est);
         }
 
         let t = Instant::now();
         let diag = (hi - lo).norm();
-        let segments = lines::part_segments(
-            p.line_detector,
-            &coarse.small,
-            &coarse.edges,
-            coarse.factor,
-            blob,
-            p.min_segment_fraction * diag,
-        )?;
+        let segments =
+            lines::part_segments(p.line_detector, &coarse.small, &coarse.edges, coarse.factor, blob, p.min_segment_fraction * diag)?;
         let axis = lines::orientation_axis(&segments);
         let theta = axis.map(|s| s.direction()).unwrap_or(0.0);
         est.descriptor = lines::descriptor(&segments, centroid, theta);
@@ -476,13 +406,8 @@ impl Estimator {
         let corr = &self.lib.correlator;
         let signal = signal::log_radius_signal(&outline, centroid, corr.bins());
         let spec = corr.spectrum(&signal);
-        let mut aligned: Vec<(usize, correlate::Alignment)> = self
-            .lib
-            .entries
-            .iter()
-            .enumerate()
-            .map(|(i, e)| (i, corr.align(&spec, &e.spectrum)))
-            .collect();
+        let mut aligned: Vec<(usize, correlate::Alignment)> =
+            self.lib.entries.iter().enumerate().map(|(i, e)| (i, corr.align(&spec, &e.spectrum))).collect();
         aligned.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms));
         tm.correlate += ms(t);
 
@@ -505,32 +430,19 @@ impl Estimator {
                     scale: al.scale,
                 };
                 // Outlines of rounded parts shift with the light by a few pixels; noise adds jitter.
-                let tolerance =
-                    p.fit_tolerance + p.fit_tolerance_rel * e.template.rms_radius() + noise / 15.0;
+                let tolerance = p.fit_tolerance + p.fit_tolerance_rel * e.template.rms_radius() + noise / 15.0;
                 let stride = if rank == 0 { 1 } else { 4 };
-                Candidate {
-                    entry: i,
-                    reg: register::register(&outline, &e.index, init, tolerance, stride),
-                    corr_rms: al.rms,
-                    tolerance,
-                }
+                Candidate { entry: i, reg: register::register(&outline, &e.index, init, tolerance, stride), corr_rms: al.rms, tolerance }
             })
             .collect();
         // Should a runner-up beat the first, register it fully too: its pose is the one reported.
-        if let Some(k) =
-            (1..cands.len()).max_by(|&x, &y| cands[x].reg.fit().total_cmp(&cands[y].reg.fit()))
+        if let Some(k) = (1..cands.len()).max_by(|&x, &y| cands[x].reg.fit().total_cmp(&cands[y].reg.fit()))
             && cands[k].reg.fit() > cands[0].reg.fit()
         {
             let e = &self.lib.entries[cands[k].entry];
-            cands[k].reg =
-                register::register(&outline, &e.index, cands[k].reg.pose, cands[k].tolerance, 1);
+            cands[k].reg = register::register(&outline, &e.index, cands[k].reg.pose, cands[k].tolerance, 1);
         }
-        cands.sort_by(|a, b| {
-            b.reg
-                .fit()
-                .total_cmp(&a.reg.fit())
-                .then(a.reg.rms.total_cmp(&b.reg.rms))
-        });
+        cands.sort_by(|a, b| b.reg.fit().total_cmp(&a.reg.fit()).then(a.reg.rms.total_cmp(&b.reg.rms)));
         tm.register += ms(t);
 
         let best = &cands[0];
@@ -571,20 +483,13 @@ impl Estimator {
         if est.fit < p.min_fit {
             // Several parts merged into one region are larger than the template they resemble.
             let nominal = self.lib.entries[aligned[0].0].template.area;
-            est.reason = if area > p.touching_area_ratio * nominal {
-                Reason::Touching
-            } else {
-                Reason::UnknownType
-            };
+            est.reason = if area > p.touching_area_ratio * nominal { Reason::Touching } else { Reason::UnknownType };
             est.detail = format!("no template fits (need {:.2}); {}", p.min_fit, est.detail);
             return Ok(est);
         }
         if pose.scale < p.scale_range.0 || pose.scale > p.scale_range.1 {
             est.reason = Reason::UnknownType;
-            est.detail = format!(
-                "scale {:.3} outside {:.2}..{:.2}; {}",
-                pose.scale, p.scale_range.0, p.scale_range.1, est.detail
-            );
+            est.detail = format!("scale {:.3} outside {:.2}..{:.2}; {}", pose.scale, p.scale_range.0, p.scale_range.1, est.detail);
             return Ok(est);
         }
         // From here on the part has a type, face and pose, accepted or not.
@@ -598,11 +503,7 @@ impl Estimator {
             est.reason = Reason::Touching;
             est.detail = format!(
                 "the outline {} (extra {:.3}, missing {:.3}, limit {:.3}); {}",
-                if best.reg.extra > p.max_foreign {
-                    "runs onto something else"
-                } else {
-                    "is partly hidden"
-                },
+                if best.reg.extra > p.max_foreign { "runs onto something else" } else { "is partly hidden" },
                 best.reg.extra,
                 best.reg.missing,
                 p.max_foreign,
@@ -612,29 +513,16 @@ impl Estimator {
         }
 
         let t = Instant::now();
-        let noise_level = if refined.contrast > 0.0 {
-            (noise / refined.contrast).clamp(0.0, 1.0)
-        } else {
-            1.0
-        };
+        let noise_level = if refined.contrast > 0.0 { (noise / refined.contrast).clamp(0.0, 1.0) } else { 1.0 };
         let lambda = p.lambda0 * (1.0 - p.alpha * noise_level);
         est.confidence = confidence(&tpl.segments, &est.segments, &pose, diag, lambda);
         // A different type or face whose outline fits nearly as well must be told apart by the
         // line features, or the part is ambiguous.
         let rival = cands.iter().skip(1).find(|c| {
             let o = &self.lib.entries[c.entry].template;
-            (o.type_name != tpl.type_name || o.face != tpl.face)
-                && c.reg.fit() >= est.fit - p.ambiguity_margin
+            (o.type_name != tpl.type_name || o.face != tpl.face) && c.reg.fit() >= est.fit - p.ambiguity_margin
         });
-        let rival_conf = rival.map(|c| {
-            confidence(
-                &self.lib.entries[c.entry].template.segments,
-                &est.segments,
-                &c.reg.pose,
-                diag,
-                lambda,
-            )
-        });
+        let rival_conf = rival.map(|c| confidence(&self.lib.entries[c.entry].template.segments, &est.segments, &c.reg.pose, diag, lambda));
         tm.confidence += ms(t);
         est.detail = format!(
             "{}, confidence {:.3} (noise {:.1}, contrast {:.0}, lambda {:.1})",
@@ -643,20 +531,11 @@ impl Estimator {
 
         if let (Some(c), Some(rc)) = (rival, rival_conf) {
             let o = &self.lib.entries[c.entry].template;
-            est.detail = format!(
-                "{}; rival {} {} fit {:.3} confidence {:.3}",
-                est.detail,
-                o.type_name,
-                o.face,
-                c.reg.fit(),
-                rc
-            );
+            est.detail = format!("{}; rival {} {} fit {:.3} confidence {:.3}", est.detail, o.type_name, o.face, c.reg.fit(), rc);
             if est.confidence - rc < p.confidence_margin {
                 est.reason = Reason::Ambiguous;
-                est.detail = format!(
-                    "{} {} fits almost as well and its line features are not clearly worse; {}",
-                    o.type_name, o.face, est.detail
-                );
+                est.detail =
+                    format!("{} {} fits almost as well and its line features are not clearly worse; {}", o.type_name, o.face, est.detail);
                 return Ok(est);
             }
         }
@@ -673,13 +552,7 @@ impl Estimator {
 /// conf = (1/N) sum_k gamma_k exp(-lambda err_k) over the template's N line features mapped into
 /// the frame, gamma_k proportional to segment length (mean 1). A template without line features
 /// cannot vouch for anything and gets 0.
-pub fn confidence(
-    expected: &[Segment],
-    found: &[Segment],
-    pose: &Similarity,
-    size: f64,
-    lambda: f64,
-) -> f64 {
+pub fn confidence(expected: &[Segment], found: &[Segment], pose: &Similarity, size: f64, lambda: f64) -> f64 {
     let total: f64 = expected.iter().map(|s| s.len()).sum();
     if expected.is_empty() || total <= 0.0 || size <= 0.0 {
         return 0.0;
@@ -688,11 +561,7 @@ pub fn confidence(
     let sum: f64 = expected
         .iter()
         .map(|s| {
-            let mapped = Segment {
-                a: pose.apply(s.a),
-                b: pose.apply(s.b),
-                width: s.width,
-            };
+            let mapped = Segment { a: pose.apply(s.a), b: pose.apply(s.b), width: s.width };
             let gamma = n * s.len() / total;
             gamma * (-lambda * lines::segment_error(&mapped, found, size)).exp()
         })
@@ -702,4 +571,43 @@ pub fn confidence(
 
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    #[test]
+    fn confidence_falls_as_line_features_scatter() {
+        let expected: Vec<Segment> = (0..12)
+            .map(|i| {
+                let a = i as f64 * 0.5;
+                let c = Pt::new(300.0 + 150.0 * a.cos(), 300.0 + 150.0 * a.sin());
+                Segment { a: c, b: c + Pt::new(40.0 * (a + 1.0).cos(), 40.0 * (a + 1.0).sin()), width: 2.0 }
+            })
+            .collect();
+        let pose = Similarity { from: Pt::new(0.0, 0.0), to: Pt::new(0.0, 0.0), angle_rad: 0.0, scale: 1.0 };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut last = f64::INFINITY;
+        for sigma in [0.0f64, 1.0, 3.0, 8.0] {
+            let n = Normal::new(0.0, sigma.max(1e-9)).unwrap();
+            let mut jitter = |p: Pt| Pt::new(p.x + n.sample(&mut rng), p.y + n.sample(&mut rng));
+            let found: Vec<Segment> = expected.iter().map(|s| Segment { a: jitter(s.a), b: jitter(s.b), width: s.width }).collect();
+            let c = confidence(&expected, &found, &pose, 400.0, 25.0);
+            assert!(c < last, "sigma {sigma}: confidence {c} not below {last}");
+            last = c;
+        }
+        assert!(confidence(&expected, &[], &pose, 400.0, 25.0) < 1e-6);
+    }
+
+    #[test]
+    fn reasons_carry_the_register_codes() {
+        let codes: Vec<u16> = Reason::ALL.iter().map(|r| r.code()).collect();
+        assert_eq!(codes, (0..9).collect::<Vec<u16>>());
+        assert_eq!(Reason::AtBorder.as_str(), "at the image border");
+        assert_eq!("down".parse::<Face>().unwrap(), Face::Down);
+        assert!("side".parse::<Face>().is_err());
+    }
 }

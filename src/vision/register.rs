@@ -48,14 +48,7 @@ impl Grid {
                 }
             }
         }
-        Self {
-            reach,
-            cell,
-            origin,
-            cols,
-            rows,
-            cells,
-        }
+        Self { reach, cell, origin, cols, rows, cells }
     }
 
     fn candidates(&self, q: Pt) -> &[u32] {
@@ -93,13 +86,7 @@ impl OutlineIndex {
             normals.push(Pt::new(e.y / l * sign, -e.x / l * sign));
             lens.push(l);
         }
-        Self {
-            pts: outline.to_vec(),
-            normals,
-            lens,
-            far: Grid::new(outline, MAX_REACH, 8.0),
-            near: Grid::new(outline, NEAR_REACH, 4.0),
-        }
+        Self { pts: outline.to_vec(), normals, lens, far: Grid::new(outline, MAX_REACH, 8.0), near: Grid::new(outline, NEAR_REACH, 4.0) }
     }
 
     pub fn outline(&self) -> &[Pt] {
@@ -108,11 +95,7 @@ impl OutlineIndex {
 
     /// Nearest segment to `q` within `reach` (at most [`MAX_REACH`]): (segment, distance, foot).
     pub fn nearest(&self, q: Pt, reach: f64) -> Option<(usize, f64, Pt)> {
-        let grid = if reach <= self.near.reach {
-            &self.near
-        } else {
-            &self.far
-        };
+        let grid = if reach <= self.near.reach { &self.near } else { &self.far };
         let n = self.pts.len();
         let mut best: Option<(usize, f64, Pt)> = None;
         for &i in grid.candidates(q) {
@@ -166,13 +149,7 @@ impl Registration {
 /// `tolerance` (template pixels) separates inliers from outliers in the final statistics;
 /// `stride` > 1 uses every stride-th point only (a cheaper, slightly noisier answer, enough to
 /// tell a rival template from the right one).
-pub fn register(
-    part: &[Pt],
-    tmpl: &OutlineIndex,
-    init: Similarity,
-    tolerance: f64,
-    stride: usize,
-) -> Registration {
+pub fn register(part: &[Pt], tmpl: &OutlineIndex, init: Similarity, tolerance: f64, stride: usize) -> Registration {
     // Parameterise the frame -> template map as q = c_t + tau + M (p - c_p), M = [[a, -b], [b, a]].
     let cp = init.to;
     let ct = init.from;
@@ -186,16 +163,7 @@ pub fn register(
     let stride = stride.max(1);
     // Tukey cut-off shrinks from the correspondence reach to a few pixels; early iterations use a
     // quarter of the points, which is plenty while the pose is still moving by pixels.
-    let schedule: [(f64, usize); 8] = [
-        (MAX_REACH, 4),
-        (12.0, 4),
-        (8.0, 4),
-        (6.0, 2),
-        (5.0, 1),
-        (4.0, 1),
-        (4.0, 1),
-        (4.0, 1),
-    ];
+    let schedule: [(f64, usize); 8] = [(MAX_REACH, 4), (12.0, 4), (8.0, 4), (6.0, 2), (5.0, 1), (4.0, 1), (4.0, 1), (4.0, 1)];
     for (iter, &(c, sub)) in schedule.iter().enumerate() {
         let step = stride.max(sub);
         let mut h = Matrix4::<f64>::zeros();
@@ -225,8 +193,7 @@ pub fn register(
             break;
         }
         // Levenberg damping keeps a degenerate first step (a circle's rotation) finite.
-        let damp =
-            Matrix4::from_diagonal(&Vector4::new(1e-9, 1e-9, 1e-9, 1e-9)) * h.trace().max(1.0);
+        let damp = Matrix4::from_diagonal(&Vector4::new(1e-9, 1e-9, 1e-9, 1e-9)) * h.trace().max(1.0);
         let Some(delta) = (h + damp).lu().solve(&(-g)) else {
             break;
         };
@@ -234,9 +201,9 @@ pub fn register(
         b += delta[1];
         tx += delta[2];
         ty += delta[3];
-        // Converged: the last step moved the outline by well under a hundredth of a pixel.
+        // Converged on all points: the last step moved the outline by under a hundredth of a pixel.
         let moved = (delta[0].hypot(delta[1]) * 300.0).max(delta[2].hypot(delta[3]));
-        if iter >= 5 && moved < 0.005 {
+        if iter >= 5 && moved < 0.01 {
             break;
         }
     }
@@ -270,35 +237,16 @@ pub fn register(
     }
     let total_len: f64 = tmpl.lens.iter().sum();
     let frac = |flags: &[bool]| {
-        if total_len > 0.0 {
-            tmpl.lens
-                .iter()
-                .zip(flags)
-                .filter(|(_, c)| **c)
-                .map(|(l, _)| l)
-                .sum::<f64>()
-                / total_len
-        } else {
-            0.0
-        }
+        if total_len > 0.0 { tmpl.lens.iter().zip(flags).filter(|(_, c)| **c).map(|(l, _)| l).sum::<f64>() / total_len } else { 0.0 }
     };
     let s = 1.0 / a.hypot(b);
     let angle = b.atan2(a);
     let tot = total.max(1) as f64;
     Registration {
-        pose: Similarity {
-            from: Pt::new(ct.x + tx, ct.y + ty),
-            to: cp,
-            angle_rad: angle,
-            scale: s,
-        },
+        pose: Similarity { from: Pt::new(ct.x + tx, ct.y + ty), to: cp, angle_rad: angle, scale: s },
         inliers: inl as f64 / tot,
         coverage: frac(&covered),
-        rms: if inl > 0 {
-            (ss / inl as f64).sqrt()
-        } else {
-            f64::INFINITY
-        },
+        rms: if inl > 0 { (ss / inl as f64).sqrt() } else { f64::INFINITY },
         extra: far as f64 / tot,
         missing: 1.0 - frac(&near),
     }
@@ -324,22 +272,9 @@ mod tests {
     fn recovers_a_similarity_from_a_rough_start() {
         let t = blob();
         let idx = OutlineIndex::new(&t);
-        let truth = Similarity {
-            from: Pt::new(200.0, 150.0),
-            to: Pt::new(812.3, 433.7),
-            angle_rad: 0.6,
-            scale: 1.04,
-        };
-        let part: Vec<Pt> = resample_closed(&t, 1.7)
-            .iter()
-            .map(|&q| truth.apply(q))
-            .collect();
-        let init = Similarity {
-            from: Pt::new(201.5, 149.0),
-            to: Pt::new(812.3, 433.7),
-            angle_rad: 0.6 + 0.01,
-            scale: 1.0,
-        };
+        let truth = Similarity { from: Pt::new(200.0, 150.0), to: Pt::new(812.3, 433.7), angle_rad: 0.6, scale: 1.04 };
+        let part: Vec<Pt> = resample_closed(&t, 1.7).iter().map(|&q| truth.apply(q)).collect();
+        let init = Similarity { from: Pt::new(201.5, 149.0), to: Pt::new(812.3, 433.7), angle_rad: 0.6 + 0.01, scale: 1.0 };
         let r = register(&part, &idx, init, 2.0, 1);
         let err = truth.apply(Pt::new(230.0, 170.0)) - r.pose.apply(Pt::new(230.0, 170.0));
         assert!(err.norm() < 0.02, "point error {err:?}");
@@ -359,12 +294,7 @@ mod tests {
                 Pt::new(200.0 + 85.0 * a.cos(), 150.0 + 85.0 * a.sin())
             })
             .collect();
-        let init = Similarity {
-            from: Pt::new(200.0, 150.0),
-            to: Pt::new(200.0, 150.0),
-            angle_rad: 0.0,
-            scale: 1.0,
-        };
+        let init = Similarity { from: Pt::new(200.0, 150.0), to: Pt::new(200.0, 150.0), angle_rad: 0.0, scale: 1.0 };
         let r = register(&other, &idx, init, 2.0, 1);
         assert!(r.fit() < 0.5, "fit {}", r.fit());
     }

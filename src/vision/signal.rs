@@ -35,11 +35,7 @@ pub fn log_radius_signal(outline: &[Pt], center: Pt, n: usize) -> Vec<f64> {
         } else if dp < -std::f64::consts::PI {
             dp += TAU;
         }
-        let (lo, hi) = if dp >= 0.0 {
-            (pa, pa + dp)
-        } else {
-            (pa + dp, pa)
-        };
+        let (lo, hi) = if dp >= 0.0 { (pa, pa + dp) } else { (pa + dp, pa) };
         let k0 = (lo / bin_w - 0.5).ceil() as i64;
         let k1 = (hi / bin_w - 0.5).floor() as i64;
         let e = b - a;
@@ -86,22 +82,13 @@ mod tests {
     #[test]
     fn a_square_has_four_peaks_at_its_corners() {
         // Square of half-side 10 centred at the origin: r(phi) = 10 / max(|cos|, |sin|).
-        let poly = vec![
-            Pt::new(-10.0, -10.0),
-            Pt::new(10.0, -10.0),
-            Pt::new(10.0, 10.0),
-            Pt::new(-10.0, 10.0),
-        ];
+        let poly = vec![Pt::new(-10.0, -10.0), Pt::new(10.0, -10.0), Pt::new(10.0, 10.0), Pt::new(-10.0, 10.0)];
         let n = 360;
         let s = log_radius_signal(&poly, Pt::new(0.0, 0.0), n);
         for (k, v) in s.iter().enumerate() {
             let th = (k as f64 + 0.5) * TAU / n as f64;
             let expect = 10.0 / th.cos().abs().max(th.sin().abs());
-            assert!(
-                (v.exp() - expect).abs() < 1e-6,
-                "bin {k}: {} vs {expect}",
-                v.exp()
-            );
+            assert!((v.exp() - expect).abs() < 1e-6, "bin {k}: {} vs {expect}", v.exp());
         }
     }
 

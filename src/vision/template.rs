@@ -39,13 +39,9 @@ pub struct Template {
 pub enum TemplateError {
     #[error(transparent)]
     Frame(#[from] FrameError),
-    #[error(
-        "no part found in the template image (nothing larger than {min_area:.0} px^2 stands out from the background)"
-    )]
+    #[error("no part found in the template image (nothing larger than {min_area:.0} px^2 stands out from the background)")]
     NoPart { min_area: f64 },
-    #[error(
-        "the part in the template image touches the image border; crop the template with a margin around the part"
-    )]
+    #[error("the part in the template image touches the image border; crop the template with a margin around the part")]
     AtBorder,
     #[error("type id {0} is reserved; use 1..=65535")]
     ReservedId(u16),
@@ -70,27 +66,14 @@ impl Template {
             return Err(TemplateError::ReservedId(0));
         }
         let min_area = 0.01 * (image.width() * image.height()) as f64;
-        let dp = DetectParams {
-            min_area,
-            ..params.detect_params(min_area)
-        };
+        let dp = DetectParams { min_area, ..params.detect_params(min_area) };
         let noise = boundary::noise_sigma(image, &[]);
         let coarse = detect::detect(image, &dp)?;
-        let blob = coarse
-            .blobs
-            .iter()
-            .max_by(|a, b| a.area.total_cmp(&b.area))
-            .ok_or(TemplateError::NoPart { min_area })?;
+        let blob = coarse.blobs.iter().max_by(|a, b| a.area.total_cmp(&b.area)).ok_or(TemplateError::NoPart { min_area })?;
         if blob.touches_border {
             return Err(TemplateError::AtBorder);
         }
-        let outline = boundary::refine(
-            image,
-            &blob.outline,
-            noise,
-            &params.refine_params(coarse.factor),
-        )
-        .outline;
+        let outline = boundary::refine(image, &blob.outline, noise, &params.refine_params(coarse.factor)).outline;
         let (area, centroid) = area_centroid(&outline);
         let (lo, hi) = bounds(&outline);
         let diag = (hi - lo).norm();
@@ -102,10 +85,7 @@ impl Template {
             blob,
             params.min_segment_fraction * diag,
         )?;
-        let origin = origin.unwrap_or(Pt::new(
-            (image.width() as f64 - 1.0) / 2.0,
-            (image.height() as f64 - 1.0) / 2.0,
-        ));
+        let origin = origin.unwrap_or(Pt::new((image.width() as f64 - 1.0) / 2.0, (image.height() as f64 - 1.0) / 2.0));
         Ok(Self {
             type_name: type_name.trim().to_string(),
             type_id,
@@ -123,13 +103,7 @@ impl Template {
     /// Root-mean-square distance of the outline from the centroid: the part's size.
     pub fn rms_radius(&self) -> f64 {
         let n = self.outline.len().max(1) as f64;
-        (self
-            .outline
-            .iter()
-            .map(|p| (*p - self.centroid).dot(*p - self.centroid))
-            .sum::<f64>()
-            / n)
-            .sqrt()
+        (self.outline.iter().map(|p| (*p - self.centroid).dot(*p - self.centroid)).sum::<f64>() / n).sqrt()
     }
 }
 
@@ -171,9 +145,6 @@ impl Library {
                 }
             })
             .collect();
-        Self {
-            entries,
-            correlator,
-        }
+        Self { entries, correlator }
     }
 }

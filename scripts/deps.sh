@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Installs the Debian packages lfi-bridge needs, when they are missing (Debian 12 and later).
+# Safe to run repeatedly: it only calls apt-get when something is absent.
+set -euo pipefail
+
+need=()
+pkg-config --exists opencv4 2>/dev/null || need+=(libopencv-dev)
+command -v clang >/dev/null 2>&1 || need+=(clang)
+# The opencv crate's binding generator loads libclang at build time.
+ls /usr/lib/llvm-*/lib/libclang.so* >/dev/null 2>&1 || ls /usr/lib/x86_64-linux-gnu/libclang-*.so* >/dev/null 2>&1 || need+=(libclang-dev)
+command -v pkg-config >/dev/null 2>&1 || need+=(pkg-config)
+if [ "${LFI_WITH_BROWSER:-0}" = 1 ]; then
+  command -v chromium >/dev/null 2>&1 || need+=(chromium)
+fi
+
+if [ ${#need[@]} -gt 0 ]; then
+  echo "installing system packages: ${need[*]}" >&2
+  sudo=""
+  [ "$(id -u)" = 0 ] || sudo="sudo"
+  $sudo apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${need[@]}" >/dev/null
+fi
+
+if ! command -v cargo >/dev/null 2>&1; then
+  echo "cargo not found: install Rust (https://rustup.rs) and run this again" >&2
+  exit 1
+fi

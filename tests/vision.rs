@@ -1,0 +1,140 @@
+//! The estimator's contract, stage by stage, on rendered parts.
+
+mod common;
+
+use lfi_bridge::sim::render::{self, Lighting, Placement, Prepared};
+use lfi_bridge::sim::{SimConfig, Simulator, models};
+use lfi_bridge::vision::geometry::angle_diff_deg;
+use lfi_bridge::vision::{Estimator, Face, GrayImage, Params, Reason, Template};
+use rand::SeedableRng;
+
+fn small_sim() -> Simulator {
+    Simulator::new(SimConfig { width: 1296, height: 972, seed: 5, noise: None }).unwrap()
+}
+
+fn light(noise: f64) -> Lighting {
+    Lighting { exposure: 0.92, gradient: 0.05, gradient_dir_deg: 30.0, glare: None, blur_sigma: 0.4, noise_sigma: noise, belt_gray: 55.0 }
+}
+
+fn frame_with(model: &Prepared, face: Face, angle: f64, noise: f64, seed: u64) -> GrayImage {
+    let pl = Placement { face, angle_deg: angle, x: 640.3, y: 481.7, px_per_mm: 3.25, gray: 170.0 };
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    render::render(1296, 972, &[(model, pl)], &light(noise), &mut rng).unwrap()
+}
+
+#[test]
+fn rotating_a_part_by_t_rotates_the_estimate_by_t() {
+    let sim = small_sim();
+    let est = Estimator::new(&common::enrolled(&sim), Params::default()).unwrap();
+    let bracket = Prepared::new(models::bracket());
+    for (i, angle) in [0.0, 33.3, 147.9, 200.05, 271.1, 359.6].into_iter().enumerate() {
+        let img = frame_with(&bracket, Face::Up, angle, 2.0, i as u64);
+        let fe = est.estimate(img.view().unwrap()).unwrap();
+        assert_eq!(fe.parts.len(), 1);
+        let p = &fe.parts[0];
+        assert!(p.accepted, "angle {angle}: {} {}", p.reason, p.detail);
+        assert_eq!(p.type_name.as_deref(), Some("bracket"));
+        assert_eq!(p.face, Some(Face::Up));
+        let err = angle_diff_deg(p.angle_deg, angle);
+        assert!(err.abs() < 0.1, "angle {angle}: estimated {} (error {err})", p.angle_deg);
+        // The drop shadow falls the same way whatever the angle, biasing the outline by a few
+        // tenths of a pixel on one side: a position error that turns with the part.
+        assert!((p.x - 640.3).hypot(p.y - 481.7) < 0.75, "angle {angle}: position ({}, {})", p.x, p.y);
+    }
+}
+
+#[test]
+fn a_mirrored_template_is_recognised_as_the_other_face() {
+    let sim = small_sim();
+    let templates = common::enrolled(&sim);
+    let est = Estimator::new(&templates, Params::default()).unwrap();
+    let (_, _, up) = sim.templates().unwrap().into_iter().find(|(n, f, _)| n == "flange" && *f == Face::Up).unwrap();
+    // Turning a part over about the x axis mirrors it top to bottom: the face-down view at 0;
+    // mirroring left to right is the same view turned by 180 degrees.
+    for (flip_rows, expect) in [(true, 0.0), (false, 180.0)] {
+        let mut m = up.clone();
+        for y in 0..up.height {
+            for x in 0..up.width {
+                let (sx, sy) = if flip_rows { (x, up.height - 1 - y) } else { (up.width - 1 - x, y) };
+                m.data[y * up.width + x] = up.data[sy * up.width + sx];
+            }
+        }
+        let fe = est.estimate(m.view().unwrap()).unwrap();
+        let p = &fe.parts[0];
+        assert_eq!(p.type_name.as_deref(), Some("flange"), "{}", p.detail);
+        assert_eq!(p.face, Some(Face::Down), "{}", p.detail);
+        assert!(angle_diff_deg(p.angle_deg, expect).abs() < 0.2, "angle {} expected {expect}", p.angle_deg);
+    }
+}
+
+#[test]
+fn confidence_falls_with_noise() {
+    let sim = small_sim();
+    let est = Estimator::new(&common::enrolled(&sim), Params::default()).unwrap();
+    let flange = Prepared::new(models::flange());
+    let conf: Vec<f64> = [0.0, 25.0, 50.0]
+        .iter()
+        .map(|&n| {
+            // Average over a few seeds: one frame's confidence wobbles with its noise.
+            let v: Vec<f64> = (0..3)
+                .map(|s| {
+                    let fe = est.estimate(frame_with(&flange, Face::Down, 77.0, n, 40 + s).view().unwrap()).unwrap();
+                    fe.parts.first().map(|p| p.confidence).unwrap_or(0.0)
+                })
+                .collect();
+            v.iter().sum::<f64>() / v.len() as f64
+        })
+        .collect();
+    assert!(conf[0] > conf[1] && conf[1] > conf[2], "confidence by noise 0/25/50: {conf:?}");
+}
+
+#[test]
+fn an_unknown_part_is_rejected_not_named_after_the_nearest_type() {
+    let sim = small_sim();
+    let est = Estimator::new(&common::enrolled(&sim), Params::default()).unwrap();
+    let lever = Prepared::new(models::lever());
+    for (i, face) in [Face::Up, Face::Down].into_iter().enumerate() {
+        let fe = est.estimate(frame_with(&lever, face, 41.0 + 90.0 * i as f64, 2.0, 9).view().unwrap()).unwrap();
+        assert_eq!(fe.parts.len(), 1);
+        assert!(!fe.parts[0].accepted);
+        assert_eq!(fe.parts[0].reason, Reason::UnknownType, "{}", fe.parts[0].detail);
+        assert_eq!(fe.parts[0].type_name, None);
+    }
+}
+
+#[test]
+fn a_frame_without_parts_yields_no_estimates() {
+    let sim = small_sim();
+    let est = Estimator::new(&common::enrolled(&sim), Params::default()).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    let belt = render::render(1296, 972, &[], &light(8.0), &mut rng).unwrap();
+    assert!(est.estimate(belt.view().unwrap()).unwrap().parts.is_empty());
+    let black = GrayImage::new(640, 480, 0);
+    assert!(est.estimate(black.view().unwrap()).unwrap().parts.is_empty());
+    let white = GrayImage::new(640, 480, 255);
+    assert!(est.estimate(white.view().unwrap()).unwrap().parts.is_empty());
+}
+
+#[test]
+fn a_part_cut_by_the_frame_edge_is_rejected_at_the_border() {
+    let sim = small_sim();
+    let est = Estimator::new(&common::enrolled(&sim), Params::default()).unwrap();
+    let bracket = Prepared::new(models::bracket());
+    let pl = Placement { face: Face::Up, angle_deg: 10.0, x: 60.0, y: 400.0, px_per_mm: 3.25, gray: 170.0 };
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let img = render::render(1296, 972, &[(&bracket, pl)], &light(2.0), &mut rng).unwrap();
+    let fe = est.estimate(img.view().unwrap()).unwrap();
+    assert_eq!(fe.parts.len(), 1);
+    assert_eq!(fe.parts[0].reason, Reason::AtBorder);
+    assert!(!fe.parts[0].accepted);
+}
+
+#[test]
+fn templates_need_a_whole_part() {
+    let empty = GrayImage::new(300, 300, 60);
+    assert!(Template::from_image(empty.view().unwrap(), "x", 1, Face::Up, None, &Params::default()).is_err());
+    let sim = small_sim();
+    let (_, _, img) = sim.templates().unwrap().remove(0);
+    assert!(Template::from_image(img.view().unwrap(), "x", 0, Face::Up, None, &Params::default()).is_err(), "id 0 is reserved");
+    assert!(Template::from_image(img.view().unwrap(), " ", 1, Face::Up, None, &Params::default()).is_err(), "empty name");
+}
