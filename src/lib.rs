@@ -5,10 +5,16 @@
 //! [`kb`] stores templates as a TOML knowledge base; [`sim`] renders scenes with ground truth;
 //! [`eval`] scores estimates against that truth.
 
+pub mod appliance;
+pub mod calibration;
+pub mod config;
 pub mod eval;
+pub mod handshake;
 pub mod imageio;
 pub mod kb;
+pub mod modbus;
 pub mod overlay;
+pub mod robot;
 pub mod sim;
 pub mod truth;
 pub mod vision;

@@ -76,6 +76,13 @@ enum Cmd {
         #[arg(required = true)]
         images: Vec<PathBuf>,
     },
+    /// Run the appliance: cameras, estimation and the Modbus/TCP server (the main job).
+    Run {
+        #[arg(long)]
+        config: PathBuf,
+    },
+    /// Print the PLC register map as Markdown (the source of register-map.md).
+    RegisterMap,
     /// Score the estimator against ground truth (truth.jsonl beside images/).
     Eval {
         #[arg(long)]
@@ -101,16 +108,27 @@ fn parse_point(s: &str) -> Result<Pt, String> {
     Ok(Pt::new(x, y))
 }
 
-fn main() -> ExitCode {
+fn init_logging(default_level: &str) {
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_level.into()))
         .init();
+}
+
+fn main() -> ExitCode {
     let cli = Cli::parse();
     if cli.cv_threads > 0 {
         let _ = opencv::core::set_num_threads(cli.cv_threads);
     }
+    if !matches!(cli.cmd, Cmd::Run { .. }) {
+        init_logging("info");
+    }
     let result = match cli.cmd {
+        Cmd::Run { config } => run(&config),
+        Cmd::RegisterMap => {
+            print!("{}", lfi_bridge::modbus::map::markdown());
+            Ok(ExitCode::SUCCESS)
+        }
         Cmd::Enroll { kb, type_name, id, face, origin, image } => enroll(&kb, &type_name, id, face, origin, &image),
         Cmd::Simulate { out, count, seed, noise, width, height } => simulate(&out, count, SimConfig { width, height, seed, noise }),
         Cmd::Estimate { kb, json, overlay_dir, repeat, images } => estimate(&kb, json, overlay_dir.as_deref(), repeat.max(1), &images),
@@ -122,6 +140,49 @@ fn main() -> ExitCode {
             eprintln!("error: {e:#}");
             ExitCode::from(2)
         }
+    }
+}
+
+fn run(config: &Path) -> Result<ExitCode> {
+    let cfg = match lfi_bridge::config::Config::load(config) {
+        Ok(c) => c,
+        Err(e) => {
+            init_logging("info");
+            return Err(e.into());
+        }
+    };
+    init_logging(&cfg.log_level);
+    tracing::info!("lfi-bridge {} starting with {}", env!("CARGO_PKG_VERSION"), config.display());
+    let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build().context("cannot start the async runtime")?;
+    rt.block_on(async {
+        let running = lfi_bridge::appliance::start(&cfg).await?;
+        tracing::info!("ready: PLC registers on {} (see register-map.md); stop with Ctrl-C or SIGTERM", running.modbus_addr);
+        wait_for_signal().await;
+        tracing::info!("stopping");
+        running.stop().await;
+        Ok::<_, anyhow::Error>(())
+    })?;
+    Ok(ExitCode::SUCCESS)
+}
+
+async fn wait_for_signal() {
+    #[cfg(unix)]
+    {
+        let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(s) => s,
+            Err(_) => {
+                let _ = tokio::signal::ctrl_c().await;
+                return;
+            }
+        };
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => {}
+            _ = term.recv() => {}
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
     }
 }
 

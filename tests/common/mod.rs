@@ -2,6 +2,8 @@
 
 #![allow(dead_code)]
 
+pub mod appliance;
+
 use lfi_bridge::eval::Observation;
 use lfi_bridge::sim::{SimConfig, Simulator};
 use lfi_bridge::truth::EstimatePart;

@@ -1,0 +1,242 @@
+//! The appliance (`lfi-bridge run`): cameras, knowledge bases, the PLC's Modbus server and the
+//! robot links, wired together. The imperative shell around [`crate::vision`] and
+//! [`crate::handshake`].
+
+pub mod camera;
+pub mod source;
+
+use std::net::SocketAddr;
+use std::sync::atomic::AtomicBool;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use tokio::net::TcpListener;
+use tokio_util::sync::CancellationToken;
+
+use crate::calibration::Calibration;
+use crate::config::{CameraConfig, Config, KbSource, SourceConfig};
+use crate::handshake::{Handshake, Settings};
+use crate::kb::KnowledgeBase;
+use crate::modbus::server::{self, Station, Stations, Stats};
+use crate::sim::Simulator;
+use crate::vision::{Estimator, Params, Template};
+use camera::{Live, Worker};
+use source::{DirSource, SimSource, Source, VideoSource};
+
+/// Why the appliance cannot start; each names the camera or address at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    #[error("camera {camera}: knowledge base")]
+    Kb { camera: String, source: crate::kb::KbError },
+    #[error("camera {camera}: cannot build the estimator")]
+    Estimator { camera: String, source: crate::vision::EstimatorError },
+    #[error("camera {camera}: simulated camera: {message}")]
+    Sim { camera: String, message: String },
+    #[error("camera {camera}: calibration")]
+    Calibration { camera: String, source: crate::calibration::CalibrationError },
+    #[error("cannot listen for Modbus on {addr}")]
+    Bind { addr: SocketAddr, source: std::io::Error },
+}
+
+/// A camera of the running appliance, for the operator view and tests.
+pub struct CameraHandle {
+    pub unit_id: u8,
+    pub name: String,
+    pub handshake: Arc<Mutex<Handshake>>,
+    pub live: Arc<Mutex<Live>>,
+    pub estimator: Arc<Estimator>,
+    pub robot: Option<Arc<Mutex<crate::handshake::RobotView>>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+/// The running appliance.
+pub struct Running {
+    pub modbus_addr: SocketAddr,
+    pub cameras: Vec<CameraHandle>,
+    pub stations: Arc<Stations>,
+    pub stats: Arc<Stats>,
+    pub started: Instant,
+    pub shutdown: CancellationToken,
+    stop: Arc<AtomicBool>,
+    tasks: Vec<tokio::task::JoinHandle<()>>,
+}
+
+fn templates_for(cam: &CameraConfig, params: &Params) -> Result<(Vec<Template>, String), StartError> {
+    match &cam.kb {
+        KbSource::File(p) => {
+            let kb = KnowledgeBase::load(p).map_err(|source| StartError::Kb { camera: cam.name.clone(), source })?;
+            Ok((kb.templates(), format!("{} ({} templates, {} types)", p.display(), kb.entries.len(), kb.type_count())))
+        }
+        KbSource::Simulator => {
+            let SourceConfig::Sim { seed, width, height, noise, .. } = cam.source else {
+                unreachable!("the configuration only allows kb_from_simulator with a sim source")
+            };
+            let sim = Simulator::new(SimSource::config(seed, width, height, noise))
+                .map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })?;
+            let names = sim.type_names();
+            let mut out = Vec::new();
+            for (name, face, img) in sim.templates().map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })? {
+                let id = names.iter().position(|n| *n == name).map(|i| i as u16 + 1).unwrap_or(0);
+                let view = img.view().map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })?;
+                let t = Template::from_image(view, &name, id, face, None, params)
+                    .map_err(|e| StartError::Sim { camera: cam.name.clone(), message: format!("template {name} {face}: {e}") })?;
+                out.push(t);
+            }
+            let desc = names.iter().enumerate().map(|(i, n)| format!("{n} = {}", i + 1)).collect::<Vec<_>>().join(", ");
+            Ok((out, format!("enrolled from the simulated camera's templates ({desc})")))
+        }
+    }
+}
+
+fn source_for(cam: &CameraConfig) -> Result<Box<dyn Source>, StartError> {
+    Ok(match &cam.source {
+        SourceConfig::Sim { seed, width, height, noise, scenes, interval } => {
+            let sim = Simulator::new(SimSource::config(*seed, *width, *height, *noise))
+                .map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })?;
+            tracing::info!(camera = %cam.name, "rendering {scenes} simulated scenes of {width} x {height}");
+            Box::new(
+                SimSource::new(&sim, *scenes, *interval)
+                    .map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })?,
+            )
+        }
+        SourceConfig::Dir { path, settle, timeout } => {
+            if !path.is_dir() {
+                tracing::warn!(camera = %cam.name, "folder {} does not exist (yet): CAMERA_OK stays 0 until it does", path.display());
+            }
+            Box::new(DirSource::new(path, *settle, *timeout))
+        }
+        SourceConfig::Video { uri, timeout } => Box::new(VideoSource::new(uri, *timeout)),
+    })
+}
+
+/// Starts everything; returns once the Modbus server listens.
+pub async fn start(cfg: &Config) -> Result<Running, StartError> {
+    let started = Instant::now();
+    let stop = Arc::new(AtomicBool::new(false));
+    let params = Params { accept_threshold: cfg.accept_threshold, ..Params::default() };
+    let mut cameras = Vec::new();
+    let mut stations = Vec::new();
+    let mut robot_links = Vec::new();
+    for cam in &cfg.cameras {
+        let (templates, kb_desc) = templates_for(cam, &params)?;
+        let estimator = Arc::new(
+            Estimator::new(&templates, params.clone()).map_err(|source| StartError::Estimator { camera: cam.name.clone(), source })?,
+        );
+        let calibration =
+            Calibration::from_config(&cam.calibration).map_err(|source| StartError::Calibration { camera: cam.name.clone(), source })?;
+        let types = {
+            let mut n: Vec<&str> = templates.iter().map(|t| t.type_name.as_str()).collect();
+            n.sort_unstable();
+            n.dedup();
+            n.len() as u16
+        };
+        tracing::info!(camera = %cam.name, unit_id = cam.unit_id, "knowledge base: {kb_desc}; calibration: {}", calibration.describe());
+        let handshake = Arc::new(Mutex::new(Handshake::new(Settings {
+            queue_depth: cfg.queue_depth,
+            online: cam.online,
+            word_order: cam.word_order,
+            types_enrolled: types,
+        })));
+        let (tx, rx) = std::sync::mpsc::channel();
+        let live = Arc::new(Mutex::new(Live::default()));
+        let source = source_for(cam)?;
+        let (robot_tx, robot_view) = match &cam.robot {
+            Some(rc) => {
+                let (rtx, rrx) = tokio::sync::mpsc::unbounded_channel();
+                let view = Arc::new(Mutex::new(crate::handshake::RobotView::default()));
+                robot_links.push((cam.name.clone(), rc.clone(), rrx, view.clone(), handshake.clone()));
+                (Some(rtx), Some(view))
+            }
+            None => (None, None),
+        };
+        let worker = Worker {
+            name: cam.name.clone(),
+            trigger: cam.trigger,
+            order: cam.picking_order,
+            roi: cam.roi,
+            estimator: estimator.clone(),
+            calibration,
+            source,
+            handshake: handshake.clone(),
+            commands: rx,
+            live: live.clone(),
+            started,
+            stop: stop.clone(),
+            robot_sends_all: cam.robot.as_ref().is_some_and(|r| r.send == crate::config::RobotSend::All),
+            robot: robot_tx,
+        };
+        let thread =
+            std::thread::Builder::new().name(format!("camera-{}", cam.unit_id)).spawn(move || worker.run()).expect("spawn camera thread");
+        stations.push(Station { unit_id: cam.unit_id, handshake: handshake.clone(), commands: tx });
+        cameras.push(CameraHandle {
+            unit_id: cam.unit_id,
+            name: cam.name.clone(),
+            handshake,
+            live,
+            estimator,
+            robot: robot_view,
+            thread: Some(thread),
+        });
+    }
+    let stations = Arc::new(Stations::new(stations, started));
+    let listener = TcpListener::bind(cfg.modbus.bind).await.map_err(|source| StartError::Bind { addr: cfg.modbus.bind, source })?;
+    let modbus_addr = listener.local_addr().map_err(|source| StartError::Bind { addr: cfg.modbus.bind, source })?;
+    tracing::info!(
+        "Modbus/TCP server on {modbus_addr} ({} camera(s), max {} clients, idle timeout {} s)",
+        cameras.len(),
+        cfg.modbus.max_connections,
+        cfg.modbus.idle_timeout.as_secs_f64()
+    );
+    let shutdown = CancellationToken::new();
+    let stats = Arc::new(Stats::default());
+    let settings = server::Settings {
+        max_connections: cfg.modbus.max_connections,
+        idle_timeout: cfg.modbus.idle_timeout,
+        write_allow: cfg.modbus.write_allow.clone(),
+    };
+    let mut tasks = vec![tokio::spawn(server::serve(listener, stations.clone(), settings, stats.clone(), shutdown.clone()))];
+    // Heartbeat (and robot-link state) into every camera's registers.
+    {
+        let (stations, shutdown) = (stations.clone(), shutdown.clone());
+        let robot_views: Vec<_> = cameras.iter().map(|c| (c.handshake.clone(), c.robot.clone())).collect();
+        tasks.push(tokio::spawn(async move {
+            let mut iv = tokio::time::interval(Duration::from_millis(100));
+            loop {
+                tokio::select! {
+                    _ = shutdown.cancelled() => break,
+                    _ = iv.tick() => {}
+                }
+                let t = stations.since_start();
+                for (hs, robot) in &robot_views {
+                    let view = robot.as_ref().map(|r| *r.lock().unwrap_or_else(|p| p.into_inner()));
+                    let mut hs = hs.lock().unwrap_or_else(|p| p.into_inner());
+                    hs.tick(t);
+                    if let Some(v) = view {
+                        hs.set_robot(v);
+                    }
+                }
+            }
+        }));
+    }
+    for (name, rc, rx, view, _hs) in robot_links {
+        tasks.push(tokio::spawn(crate::robot::link::run(name, rc, rx, view, shutdown.clone())));
+    }
+    Ok(Running { modbus_addr, cameras, stations, stats, started, shutdown, stop, tasks })
+}
+
+impl Running {
+    /// Stops accepting, ends sessions and robot links, and joins the camera threads.
+    pub async fn stop(mut self) {
+        self.shutdown.cancel();
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        for t in self.tasks.drain(..) {
+            let _ = t.await;
+        }
+        for c in &mut self.cameras {
+            if let Some(t) = c.thread.take() {
+                let _ = tokio::task::spawn_blocking(move || t.join()).await;
+            }
+        }
+        tracing::info!("appliance stopped");
+    }
+}

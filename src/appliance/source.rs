@@ -1,0 +1,295 @@
+//! Where frames come from: the simulated camera, a folder a camera writes into, or OpenCV video.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant, SystemTime};
+
+use opencv::prelude::*;
+use opencv::videoio;
+
+use crate::imageio;
+use crate::sim::{SimConfig, Simulator};
+use crate::vision::GrayImage;
+
+/// A frame and where it came from (for logs).
+#[derive(Debug, Clone)]
+pub struct Frame {
+    pub image: GrayImage,
+    pub label: String,
+}
+
+/// Why there is no usable frame.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SourceError {
+    /// Nothing arrived in time (a camera fault in trigger mode, a quiet spell in free-run).
+    #[error("no frame within {0} ms")]
+    Timeout(u128),
+    /// The camera failed (device gone, stream broken).
+    #[error("camera failed: {0}")]
+    Camera(String),
+    /// A frame arrived but cannot be used (corrupt file, unsupported format).
+    #[error("unusable frame: {0}")]
+    Unusable(String),
+}
+
+/// A camera.
+pub trait Source: Send {
+    /// The frame for a trigger, waiting at most the source's timeout.
+    fn grab(&mut self) -> Result<Frame, SourceError>;
+    /// The next new frame in free-run, waiting at most `wait`.
+    fn next(&mut self, wait: Duration) -> Result<Frame, SourceError>;
+    /// Whether the camera is currently usable (CAMERA_OK).
+    fn ok(&self) -> bool;
+}
+
+/// The built-in simulated camera: scenes rendered once at start-up, served in turn.
+pub struct SimSource {
+    frames: Vec<(GrayImage, String)>,
+    next: usize,
+    interval: Duration,
+    last: Option<Instant>,
+}
+
+impl SimSource {
+    pub fn new(sim: &Simulator, scenes: usize, interval: Duration) -> Result<Self, SourceError> {
+        let mut frames = Vec::with_capacity(scenes);
+        for i in 0..scenes as u64 {
+            let s = sim.scene(i).map_err(|e| SourceError::Camera(e.to_string()))?;
+            frames.push((s.image, format!("sim scene {} ({})", i, s.truth.condition)));
+        }
+        Ok(Self { frames, next: 0, interval, last: None })
+    }
+    pub fn config(seed: u64, width: usize, height: usize, noise: Option<f64>) -> SimConfig {
+        SimConfig { width, height, seed, noise }
+    }
+}
+
+impl Source for SimSource {
+    fn grab(&mut self) -> Result<Frame, SourceError> {
+        let (image, label) = self.frames[self.next % self.frames.len()].clone();
+        self.next += 1;
+        Ok(Frame { image, label })
+    }
+    fn next(&mut self, wait: Duration) -> Result<Frame, SourceError> {
+        if let Some(last) = self.last {
+            let due = last + self.interval;
+            let now = Instant::now();
+            if due > now {
+                if due - now > wait {
+                    std::thread::sleep(wait);
+                    return Err(SourceError::Timeout(wait.as_millis()));
+                }
+                std::thread::sleep(due - now);
+            }
+        }
+        self.last = Some(Instant::now());
+        self.grab()
+    }
+    fn ok(&self) -> bool {
+        true
+    }
+}
+
+const IMAGE_EXTENSIONS: [&str; 9] = ["png", "bmp", "tif", "tiff", "jpg", "jpeg", "pgm", "ppm", "pnm"];
+
+/// A folder the camera's software drops image files into. A file is complete when its size and
+/// modification time have not changed for `settle`; each complete file is one frame, then moved
+/// to `done/` (or `failed/` when it cannot be decoded), so it is never processed twice.
+pub struct DirSource {
+    inbox: PathBuf,
+    settle: Duration,
+    timeout: Duration,
+    /// Last (size, mtime) seen per file and since when it has been unchanged.
+    watch: HashMap<PathBuf, (u64, Option<SystemTime>, Instant)>,
+}
+
+impl DirSource {
+    pub fn new(inbox: &Path, settle: Duration, timeout: Duration) -> Self {
+        Self { inbox: inbox.to_path_buf(), settle, timeout, watch: HashMap::new() }
+    }
+
+    /// The oldest complete file, if any.
+    fn scan(&mut self) -> Option<PathBuf> {
+        let now = Instant::now();
+        let Ok(entries) = std::fs::read_dir(&self.inbox) else { return None };
+        let mut present = Vec::new();
+        for e in entries.flatten() {
+            let p = e.path();
+            let name = e.file_name().to_string_lossy().into_owned();
+            let ext_ok =
+                p.extension().map(|x| x.to_string_lossy().to_ascii_lowercase()).is_some_and(|x| IMAGE_EXTENSIONS.contains(&x.as_str()));
+            if name.starts_with('.') || !ext_ok {
+                continue;
+            }
+            let Ok(md) = e.metadata() else { continue };
+            if !md.is_file() {
+                continue;
+            }
+            let key = (md.len(), md.modified().ok());
+            let entry = self.watch.entry(p.clone()).or_insert((key.0, key.1, now));
+            if (entry.0, entry.1) != key {
+                *entry = (key.0, key.1, now);
+            }
+            present.push(p);
+        }
+        self.watch.retain(|p, _| present.contains(p));
+        let mut complete: Vec<(&PathBuf, &(u64, Option<SystemTime>, Instant))> =
+            self.watch.iter().filter(|(_, (size, _, since))| *size > 0 && now.duration_since(*since) >= self.settle).collect();
+        complete.sort_by(|a, b| a.1.1.cmp(&b.1.1).then(a.0.cmp(b.0)));
+        complete.first().map(|(p, _)| (*p).clone())
+    }
+
+    fn move_to(&self, file: &Path, sub: &str) -> Result<PathBuf, String> {
+        let dir = self.inbox.join(sub);
+        std::fs::create_dir_all(&dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+        let name = file.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let mut target = dir.join(&name);
+        let mut n = 1;
+        while target.exists() {
+            target = dir.join(format!("{name}.{n}"));
+            n += 1;
+        }
+        std::fs::rename(file, &target).map_err(|e| format!("cannot move {} to {}: {e}", file.display(), target.display()))?;
+        Ok(target)
+    }
+
+    fn take(&mut self, file: PathBuf) -> Result<Frame, SourceError> {
+        self.watch.remove(&file);
+        let decoded = imageio::read_gray(&file);
+        let (sub, result) = match decoded {
+            Ok((image, notes)) => {
+                for n in notes {
+                    tracing::warn!(file = %file.display(), "{n}");
+                }
+                ("done", Ok(image))
+            }
+            Err(e) => ("failed", Err(format!("{e:#}"))),
+        };
+        // Moving out of the inbox is what makes "exactly once": a file that cannot be moved
+        // would be seen again, so that is a camera fault, not a frame.
+        let moved = self.move_to(&file, sub).map_err(SourceError::Camera)?;
+        match result {
+            Ok(image) => Ok(Frame { image, label: moved.display().to_string() }),
+            Err(e) => Err(SourceError::Unusable(format!("{} (moved to {})", e, moved.display()))),
+        }
+    }
+
+    fn wait_for_file(&mut self, wait: Duration) -> Result<Frame, SourceError> {
+        let until = Instant::now() + wait;
+        loop {
+            if let Some(f) = self.scan() {
+                return self.take(f);
+            }
+            if !self.inbox.is_dir() {
+                return Err(SourceError::Camera(format!("folder {} is missing", self.inbox.display())));
+            }
+            let now = Instant::now();
+            if now >= until {
+                return Err(SourceError::Timeout(wait.as_millis()));
+            }
+            std::thread::sleep((until - now).min(Duration::from_millis(25)));
+        }
+    }
+}
+
+impl Source for DirSource {
+    fn grab(&mut self) -> Result<Frame, SourceError> {
+        self.wait_for_file(self.timeout)
+    }
+    fn next(&mut self, wait: Duration) -> Result<Frame, SourceError> {
+        self.wait_for_file(wait)
+    }
+    fn ok(&self) -> bool {
+        self.inbox.is_dir()
+    }
+}
+
+/// OpenCV VideoCapture: "0" (a device index), a file, an RTSP URL or a GStreamer pipeline.
+pub struct VideoSource {
+    uri: String,
+    cap: Option<videoio::VideoCapture>,
+    retry_at: Instant,
+    timeout: Duration,
+}
+
+impl VideoSource {
+    pub fn new(uri: &str, timeout: Duration) -> Self {
+        let mut s = Self { uri: uri.to_string(), cap: None, retry_at: Instant::now(), timeout };
+        s.open();
+        s
+    }
+
+    fn open(&mut self) {
+        let opened = match self.uri.trim().parse::<i32>() {
+            Ok(index) => videoio::VideoCapture::new(index, videoio::CAP_ANY),
+            Err(_) => videoio::VideoCapture::from_file(&self.uri, videoio::CAP_ANY),
+        };
+        match opened {
+            Ok(cap) if cap.is_opened().unwrap_or(false) => {
+                tracing::info!(uri = %self.uri, "video source opened");
+                self.cap = Some(cap);
+            }
+            Ok(_) | Err(_) => {
+                tracing::warn!(uri = %self.uri, "video source cannot be opened; retrying in 2 s");
+                self.cap = None;
+                self.retry_at = Instant::now() + Duration::from_secs(2);
+            }
+        }
+    }
+
+    fn read(&mut self) -> Result<Frame, SourceError> {
+        if self.cap.is_none() && Instant::now() >= self.retry_at {
+            self.open();
+        }
+        let Some(cap) = self.cap.as_mut() else { return Err(SourceError::Camera(format!("{} is not open", self.uri))) };
+        let mut m = opencv::core::Mat::default();
+        let started = Instant::now();
+        let ok = cap.read(&mut m).unwrap_or(false);
+        if !ok || m.empty() {
+            self.cap = None;
+            self.retry_at = Instant::now() + Duration::from_secs(1);
+            if started.elapsed() > self.timeout {
+                return Err(SourceError::Timeout(self.timeout.as_millis()));
+            }
+            return Err(SourceError::Camera(format!("{} delivered no frame (end of stream or device error)", self.uri)));
+        }
+        let (image, _) = GrayImage::from_mat(&m).map_err(|e| SourceError::Unusable(e.to_string()))?;
+        Ok(Frame { image, label: self.uri.clone() })
+    }
+}
+
+impl Source for VideoSource {
+    fn grab(&mut self) -> Result<Frame, SourceError> {
+        self.read()
+    }
+    fn next(&mut self, _wait: Duration) -> Result<Frame, SourceError> {
+        self.read()
+    }
+    fn ok(&self) -> bool {
+        self.cap.is_some()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dir_source_takes_each_complete_file_once_and_files_bad_ones() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut src = DirSource::new(dir.path(), Duration::from_millis(30), Duration::from_millis(300));
+        assert!(matches!(src.grab(), Err(SourceError::Timeout(_))));
+        imageio::write_png(&dir.path().join("a.png"), &GrayImage::new(64, 48, 9)).unwrap();
+        std::fs::write(dir.path().join("b.png"), b"not a png").unwrap();
+        std::fs::write(dir.path().join("notes.txt"), b"ignored").unwrap();
+        let mut got = Vec::new();
+        for _ in 0..2 {
+            got.push(src.grab());
+        }
+        assert!(matches!(src.grab(), Err(SourceError::Timeout(_))), "nothing is taken twice");
+        assert!(got.iter().any(|r| r.as_ref().is_ok_and(|f| f.label.contains("done"))));
+        assert!(got.iter().any(|r| matches!(r, Err(SourceError::Unusable(m)) if m.contains("failed"))));
+        assert!(dir.path().join("done/a.png").exists() && dir.path().join("failed/b.png").exists());
+        assert!(dir.path().join("notes.txt").exists());
+    }
+}

@@ -1,0 +1,637 @@
+//! The appliance's configuration file (`config/*.toml`).
+//!
+//! Two stages, like a command line: [`raw`] mirrors the TOML (serde rejects unknown keys and
+//! wrong types with the line and column), then [`Config::from_toml`] validates ranges and
+//! combinations into ready-to-use values. Every error names the file, the key and the value.
+
+use std::net::{IpAddr, SocketAddr};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use crate::handshake::WordOrder;
+
+/// The file exactly as written.
+pub mod raw {
+    use serde::Deserialize;
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct File {
+        #[serde(default)]
+        pub modbus: Modbus,
+        #[serde(default)]
+        pub result: ResultSection,
+        #[serde(default)]
+        pub log: Log,
+        #[serde(default)]
+        pub http: Option<Http>,
+        #[serde(default)]
+        pub camera: Vec<Camera>,
+    }
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct Modbus {
+        #[serde(default = "default_bind")]
+        pub bind: String,
+        #[serde(default = "default_max_connections")]
+        pub max_connections: i64,
+        #[serde(default = "default_idle")]
+        pub idle_timeout_s: f64,
+        #[serde(default)]
+        pub write_allow: Vec<String>,
+    }
+    fn default_bind() -> String {
+        "127.0.0.1:1502".into()
+    }
+    fn default_max_connections() -> i64 {
+        64
+    }
+    fn default_idle() -> f64 {
+        60.0
+    }
+    impl Default for Modbus {
+        fn default() -> Self {
+            Self {
+                bind: default_bind(),
+                max_connections: default_max_connections(),
+                idle_timeout_s: default_idle(),
+                write_allow: Vec::new(),
+            }
+        }
+    }
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct ResultSection {
+        #[serde(default = "default_depth")]
+        pub queue_depth: i64,
+        #[serde(default = "default_threshold")]
+        pub accept_threshold: f64,
+    }
+    fn default_depth() -> i64 {
+        8
+    }
+    fn default_threshold() -> f64 {
+        0.5
+    }
+    impl Default for ResultSection {
+        fn default() -> Self {
+            Self { queue_depth: default_depth(), accept_threshold: default_threshold() }
+        }
+    }
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct Log {
+        #[serde(default = "default_level")]
+        pub level: String,
+    }
+    fn default_level() -> String {
+        "info".into()
+    }
+    impl Default for Log {
+        fn default() -> Self {
+            Self { level: default_level() }
+        }
+    }
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct Http {
+        #[serde(default = "default_http_bind")]
+        pub bind: String,
+        #[serde(default)]
+        pub token: Option<String>,
+    }
+    fn default_http_bind() -> String {
+        "127.0.0.1:8080".into()
+    }
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct Camera {
+        pub unit_id: i64,
+        #[serde(default)]
+        pub name: Option<String>,
+        pub source: Source,
+        #[serde(default = "default_trigger")]
+        pub trigger: String,
+        #[serde(default = "default_online")]
+        pub online: bool,
+        #[serde(default)]
+        pub kb: Option<String>,
+        #[serde(default)]
+        pub kb_from_simulator: bool,
+        #[serde(default)]
+        pub roi: Option<Vec<i64>>,
+        #[serde(default)]
+        pub mm_per_px: Option<f64>,
+        #[serde(default)]
+        pub calibration: Option<Calibration>,
+        #[serde(default = "default_word_order")]
+        pub float_word_order: String,
+        #[serde(default)]
+        pub robot: Option<Robot>,
+        #[serde(default = "default_picking_order")]
+        pub picking_order: String,
+    }
+    fn default_picking_order() -> String {
+        "x-descending".into()
+    }
+    fn default_trigger() -> String {
+        "modbus".into()
+    }
+    fn default_online() -> bool {
+        true
+    }
+    fn default_word_order() -> String {
+        "high-first".into()
+    }
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct Source {
+        pub kind: String,
+        // sim
+        pub seed: Option<i64>,
+        pub width: Option<i64>,
+        pub height: Option<i64>,
+        pub noise: Option<f64>,
+        pub scenes: Option<i64>,
+        pub interval_ms: Option<i64>,
+        // dir
+        pub path: Option<String>,
+        pub settle_ms: Option<i64>,
+        pub timeout_ms: Option<i64>,
+        // video
+        pub uri: Option<String>,
+    }
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct Calibration {
+        pub points: Vec<Vec<f64>>,
+    }
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct Robot {
+        pub address: String,
+        #[serde(default = "default_robot_unit")]
+        pub unit_id: i64,
+        #[serde(default)]
+        pub input_words_at: i64,
+        #[serde(default)]
+        pub output_words_at: i64,
+        #[serde(default = "default_output_function")]
+        pub output_function: i64,
+        #[serde(default = "default_poll")]
+        pub poll_ms: i64,
+        #[serde(default = "default_ack_timeout")]
+        pub ack_timeout_s: f64,
+        #[serde(default = "default_send")]
+        pub send: String,
+        #[serde(default = "default_robot_queue")]
+        pub queue_depth: i64,
+    }
+    fn default_robot_unit() -> i64 {
+        1
+    }
+    fn default_output_function() -> i64 {
+        3
+    }
+    fn default_poll() -> i64 {
+        20
+    }
+    fn default_ack_timeout() -> f64 {
+        30.0
+    }
+    fn default_send() -> String {
+        "accepted".into()
+    }
+    fn default_robot_queue() -> i64 {
+        64
+    }
+}
+
+/// A configuration error: the file, the key, the value and what was expected.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read configuration {path}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("configuration {path}: {message}")]
+    Syntax { path: PathBuf, message: String },
+    #[error("configuration {path}: {key} = {value} {problem}")]
+    Value { path: PathBuf, key: String, value: String, problem: String },
+}
+
+/// Where a camera's frames come from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SourceConfig {
+    /// The built-in simulated camera: `scenes` frames rendered at start-up and served in turn.
+    Sim { seed: u64, width: usize, height: usize, noise: Option<f64>, scenes: usize, interval: Duration },
+    /// Image files dropped into a folder by the camera's own software.
+    Dir { path: PathBuf, settle: Duration, timeout: Duration },
+    /// OpenCV VideoCapture: a device index, a file, an RTSP URL or a GStreamer pipeline.
+    Video { uri: String, timeout: Duration },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Trigger {
+    Modbus,
+    FreeRun,
+}
+
+/// Pixel to robot-frame millimetres.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CalibrationConfig {
+    Scale { mm_per_px: f64 },
+    Points(Vec<[f64; 4]>),
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub enum KbSource {
+    File(PathBuf),
+    /// Enroll the simulated camera's own templates at start-up.
+    Simulator,
+}
+
+/// Order of a frame's accepted parts (rejected parts follow in the same order).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PickingOrder {
+    XAscending,
+    XDescending,
+    YAscending,
+    YDescending,
+    Confidence,
+}
+
+impl PickingOrder {
+    pub fn compare(&self, a: &crate::handshake::PartResult, b: &crate::handshake::PartResult) -> std::cmp::Ordering {
+        match self {
+            PickingOrder::XAscending => a.x_mm.total_cmp(&b.x_mm),
+            PickingOrder::XDescending => b.x_mm.total_cmp(&a.x_mm),
+            PickingOrder::YAscending => a.y_mm.total_cmp(&b.y_mm),
+            PickingOrder::YDescending => b.y_mm.total_cmp(&a.y_mm),
+            PickingOrder::Confidence => b.confidence.total_cmp(&a.confidence),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RobotSend {
+    Accepted,
+    All,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct RobotConfig {
+    pub address: String,
+    pub unit_id: u8,
+    pub input_words_at: u16,
+    pub output_words_at: u16,
+    /// 3 read holding registers, 4 read input registers.
+    pub output_function: u8,
+    pub poll: Duration,
+    pub ack_timeout: Duration,
+    pub send: RobotSend,
+    pub queue_depth: usize,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraConfig {
+    pub unit_id: u8,
+    pub name: String,
+    pub source: SourceConfig,
+    pub trigger: Trigger,
+    pub online: bool,
+    pub kb: KbSource,
+    pub roi: Option<[usize; 4]>,
+    pub calibration: CalibrationConfig,
+    pub word_order: WordOrder,
+    pub robot: Option<RobotConfig>,
+    pub picking_order: PickingOrder,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModbusConfig {
+    pub bind: SocketAddr,
+    pub max_connections: usize,
+    pub idle_timeout: Duration,
+    pub write_allow: Vec<IpAddr>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct HttpConfig {
+    pub bind: SocketAddr,
+    pub token: Option<String>,
+}
+
+/// The validated configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Config {
+    pub path: PathBuf,
+    pub modbus: ModbusConfig,
+    pub queue_depth: usize,
+    pub accept_threshold: f64,
+    pub log_level: String,
+    pub http: Option<HttpConfig>,
+    pub cameras: Vec<CameraConfig>,
+}
+
+struct Check<'a> {
+    path: &'a Path,
+}
+
+impl Check<'_> {
+    fn err(&self, key: impl Into<String>, value: impl std::fmt::Display, problem: impl Into<String>) -> ConfigError {
+        ConfigError::Value { path: self.path.to_path_buf(), key: key.into(), value: value.to_string(), problem: problem.into() }
+    }
+    fn int<T: TryFrom<i64>>(&self, key: &str, v: i64, lo: i64, hi: i64) -> Result<T, ConfigError> {
+        if v < lo || v > hi {
+            return Err(self.err(key, v, format!("is out of range ({lo}..={hi})")));
+        }
+        T::try_from(v).map_err(|_| self.err(key, v, "does not fit"))
+    }
+    fn real(&self, key: &str, v: f64, lo: f64, hi: f64) -> Result<f64, ConfigError> {
+        if !v.is_finite() || v < lo || v > hi {
+            return Err(self.err(key, v, format!("is out of range ({lo}..={hi})")));
+        }
+        Ok(v)
+    }
+}
+
+impl Config {
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.into(), source })?;
+        Self::from_toml(&text, path)
+    }
+
+    pub fn from_toml(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let raw: raw::File = toml::from_str(text).map_err(|e| ConfigError::Syntax { path: path.into(), message: e.to_string() })?;
+        let c = Check { path };
+        let base = path.parent().unwrap_or(Path::new("."));
+        let m = &raw.modbus;
+        let bind: SocketAddr = m.bind.parse().map_err(|_| c.err("modbus.bind", format!("{:?}", m.bind), "is not an address:port"))?;
+        let write_allow = m
+            .write_allow
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                s.parse::<IpAddr>().map_err(|_| c.err(format!("modbus.write_allow[{i}]"), format!("{s:?}"), "is not an IP address"))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let modbus = ModbusConfig {
+            bind,
+            max_connections: c.int("modbus.max_connections", m.max_connections, 1, 1024)?,
+            idle_timeout: Duration::from_secs_f64(c.real("modbus.idle_timeout_s", m.idle_timeout_s, 0.1, 86400.0)?),
+            write_allow,
+        };
+        let queue_depth = c.int("result.queue_depth", raw.result.queue_depth, 1, 1000)?;
+        let accept_threshold = c.real("result.accept_threshold", raw.result.accept_threshold, 0.0, 1.0)?;
+        let levels = ["error", "warn", "info", "debug", "trace"];
+        if !levels.contains(&raw.log.level.as_str()) {
+            return Err(c.err("log.level", format!("{:?}", raw.log.level), format!("is not one of {levels:?}")));
+        }
+        let http = match &raw.http {
+            None => None,
+            Some(h) => {
+                let bind = h.bind.parse().map_err(|_| c.err("http.bind", format!("{:?}", h.bind), "is not an address:port"))?;
+                if let Some(t) = &h.token
+                    && t.len() < 8
+                {
+                    return Err(c.err("http.token", "(hidden)", "is shorter than 8 characters"));
+                }
+                Some(HttpConfig { bind, token: h.token.clone() })
+            }
+        };
+        if raw.camera.is_empty() {
+            return Err(c.err("camera", "[]", "must list at least one [[camera]]"));
+        }
+        let mut cameras: Vec<CameraConfig> = Vec::new();
+        for (i, rc) in raw.camera.iter().enumerate() {
+            let k = |f: &str| format!("camera[{i}].{f}");
+            let unit_id: u8 = c.int(&k("unit_id"), rc.unit_id, 1, 247)?;
+            if cameras.iter().any(|o| o.unit_id == unit_id) {
+                return Err(c.err(k("unit_id"), unit_id, "is used by another camera"));
+            }
+            let s = &rc.source;
+            let only = |allowed: &[&str]| -> Result<(), ConfigError> {
+                let given = [
+                    ("seed", s.seed.is_some()),
+                    ("width", s.width.is_some()),
+                    ("height", s.height.is_some()),
+                    ("noise", s.noise.is_some()),
+                    ("scenes", s.scenes.is_some()),
+                    ("interval_ms", s.interval_ms.is_some()),
+                    ("path", s.path.is_some()),
+                    ("settle_ms", s.settle_ms.is_some()),
+                    ("timeout_ms", s.timeout_ms.is_some()),
+                    ("uri", s.uri.is_some()),
+                ];
+                for (name, set) in given {
+                    if set && !allowed.contains(&name) {
+                        return Err(c.err(k(&format!("source.{name}")), "(set)", format!("does not apply to kind = {:?}", s.kind)));
+                    }
+                }
+                Ok(())
+            };
+            let source = match s.kind.as_str() {
+                "sim" => {
+                    only(&["seed", "width", "height", "noise", "scenes", "interval_ms"])?;
+                    SourceConfig::Sim {
+                        seed: c.int(&k("source.seed"), s.seed.unwrap_or(1), 0, i64::MAX)?,
+                        width: c.int(&k("source.width"), s.width.unwrap_or(2592), 320, 8192)?,
+                        height: c.int(&k("source.height"), s.height.unwrap_or(1944), 240, 8192)?,
+                        noise: s.noise.map(|n| c.real(&k("source.noise"), n, 0.0, 100.0)).transpose()?,
+                        scenes: c.int(&k("source.scenes"), s.scenes.unwrap_or(8), 1, 256)?,
+                        interval: Duration::from_millis(c.int(&k("source.interval_ms"), s.interval_ms.unwrap_or(500), 0, 3_600_000)?),
+                    }
+                }
+                "dir" => {
+                    only(&["path", "settle_ms", "timeout_ms"])?;
+                    let p = s.path.as_ref().ok_or_else(|| c.err(k("source.path"), "(missing)", "is required for kind = \"dir\""))?;
+                    SourceConfig::Dir {
+                        path: base.join(p),
+                        settle: Duration::from_millis(c.int(&k("source.settle_ms"), s.settle_ms.unwrap_or(200), 0, 60_000)?),
+                        timeout: Duration::from_millis(c.int(&k("source.timeout_ms"), s.timeout_ms.unwrap_or(5000), 1, 3_600_000)?),
+                    }
+                }
+                "video" => {
+                    only(&["uri", "timeout_ms"])?;
+                    let uri = s
+                        .uri
+                        .clone()
+                        .filter(|u| !u.trim().is_empty())
+                        .ok_or_else(|| c.err(k("source.uri"), "(missing)", "is required for kind = \"video\""))?;
+                    SourceConfig::Video {
+                        uri,
+                        timeout: Duration::from_millis(c.int(&k("source.timeout_ms"), s.timeout_ms.unwrap_or(5000), 1, 3_600_000)?),
+                    }
+                }
+                other => return Err(c.err(k("source.kind"), format!("{other:?}"), "is not one of \"sim\", \"dir\", \"video\"")),
+            };
+            let trigger = match rc.trigger.as_str() {
+                "modbus" => Trigger::Modbus,
+                "free-run" => Trigger::FreeRun,
+                other => return Err(c.err(k("trigger"), format!("{other:?}"), "is not \"modbus\" or \"free-run\"")),
+            };
+            let kb = match (&rc.kb, rc.kb_from_simulator) {
+                (Some(_), true) => return Err(c.err(k("kb_from_simulator"), true, "cannot be combined with kb")),
+                (Some(p), false) => KbSource::File(base.join(p)),
+                (None, true) => {
+                    if !matches!(source, SourceConfig::Sim { .. }) {
+                        return Err(c.err(k("kb_from_simulator"), true, "needs source.kind = \"sim\""));
+                    }
+                    KbSource::Simulator
+                }
+                (None, false) => return Err(c.err(k("kb"), "(missing)", "is required (or kb_from_simulator = true with a sim source)")),
+            };
+            let roi = match &rc.roi {
+                None => None,
+                Some(v) => {
+                    if v.len() != 4 || v.iter().any(|&x| x < 0) || v[2] < 32 || v[3] < 32 {
+                        return Err(c.err(k("roi"), format!("{v:?}"), "must be [x, y, width, height] with width and height >= 32"));
+                    }
+                    Some([v[0] as usize, v[1] as usize, v[2] as usize, v[3] as usize])
+                }
+            };
+            let calibration = match (&rc.calibration, rc.mm_per_px) {
+                (Some(_), Some(_)) => {
+                    return Err(c.err(k("mm_per_px"), rc.mm_per_px.unwrap_or(0.0), "cannot be combined with [camera.calibration]"));
+                }
+                (Some(cal), None) => {
+                    if cal.points.len() < 4 {
+                        return Err(c.err(
+                            k("calibration.points"),
+                            format!("{} pairs", cal.points.len()),
+                            "needs at least 4 [x_px, y_px, x_mm, y_mm] pairs",
+                        ));
+                    }
+                    let mut pts = Vec::new();
+                    for (j, p) in cal.points.iter().enumerate() {
+                        if p.len() != 4 || p.iter().any(|v| !v.is_finite()) {
+                            return Err(c.err(
+                                k(&format!("calibration.points[{j}]")),
+                                format!("{p:?}"),
+                                "must be [x_px, y_px, x_mm, y_mm]",
+                            ));
+                        }
+                        pts.push([p[0], p[1], p[2], p[3]]);
+                    }
+                    CalibrationConfig::Points(pts)
+                }
+                (None, s) => CalibrationConfig::Scale { mm_per_px: c.real(&k("mm_per_px"), s.unwrap_or(1.0), 1e-6, 1e6)? },
+            };
+            let word_order = match rc.float_word_order.as_str() {
+                "high-first" => WordOrder::HighFirst,
+                "low-first" => WordOrder::LowFirst,
+                other => return Err(c.err(k("float_word_order"), format!("{other:?}"), "is not \"high-first\" or \"low-first\"")),
+            };
+            let robot = match &rc.robot {
+                None => None,
+                Some(r) => {
+                    let rk = |f: &str| k(&format!("robot.{f}"));
+                    if r.address.trim().is_empty() {
+                        return Err(c.err(rk("address"), "\"\"", "is empty"));
+                    }
+                    let output_function = c.int(&rk("output_function"), r.output_function, 3, 4)?;
+                    let input_words_at: u16 = c.int(&rk("input_words_at"), r.input_words_at, 0, 65535 - 7)?;
+                    let output_words_at: u16 = c.int(&rk("output_words_at"), r.output_words_at, 0, 65535 - 1)?;
+                    Some(RobotConfig {
+                        address: r.address.clone(),
+                        unit_id: c.int(&rk("unit_id"), r.unit_id, 0, 255)?,
+                        input_words_at,
+                        output_words_at,
+                        output_function,
+                        poll: Duration::from_millis(c.int(&rk("poll_ms"), r.poll_ms, 1, 60_000)?),
+                        ack_timeout: Duration::from_secs_f64(c.real(&rk("ack_timeout_s"), r.ack_timeout_s, 0.05, 86400.0)?),
+                        send: match r.send.as_str() {
+                            "accepted" => RobotSend::Accepted,
+                            "all" => RobotSend::All,
+                            other => return Err(c.err(rk("send"), format!("{other:?}"), "is not \"accepted\" or \"all\"")),
+                        },
+                        queue_depth: c.int(&rk("queue_depth"), r.queue_depth, 1, 10_000)?,
+                    })
+                }
+            };
+            let picking_order = match rc.picking_order.as_str() {
+                "x-ascending" => PickingOrder::XAscending,
+                "x-descending" => PickingOrder::XDescending,
+                "y-ascending" => PickingOrder::YAscending,
+                "y-descending" => PickingOrder::YDescending,
+                "confidence" => PickingOrder::Confidence,
+                other => {
+                    return Err(c.err(
+                        k("picking_order"),
+                        format!("{other:?}"),
+                        "is not one of \"x-ascending\", \"x-descending\", \"y-ascending\", \"y-descending\", \"confidence\"",
+                    ));
+                }
+            };
+            cameras.push(CameraConfig {
+                unit_id,
+                name: rc.name.clone().unwrap_or_else(|| format!("camera{unit_id}")),
+                source,
+                trigger,
+                online: rc.online,
+                kb,
+                roi,
+                calibration,
+                word_order,
+                robot,
+                picking_order,
+            });
+        }
+        Ok(Config { path: path.to_path_buf(), modbus, queue_depth, accept_threshold, log_level: raw.log.level.clone(), http, cameras })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MIN: &str = "[[camera]]\nunit_id = 1\nkb_from_simulator = true\n[camera.source]\nkind = \"sim\"\n";
+
+    fn err(text: &str) -> String {
+        Config::from_toml(text, Path::new("/etc/lfi/x.toml")).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn defaults_fill_a_minimal_file() {
+        let c = Config::from_toml(MIN, Path::new("x.toml")).unwrap();
+        assert_eq!(c.modbus.bind.to_string(), "127.0.0.1:1502");
+        assert_eq!(c.modbus.max_connections, 64);
+        assert_eq!(c.queue_depth, 8);
+        assert_eq!(c.cameras[0].trigger, Trigger::Modbus);
+        assert!(c.cameras[0].online);
+        assert_eq!(c.cameras[0].word_order, WordOrder::HighFirst);
+    }
+
+    #[test]
+    fn errors_name_file_key_and_value() {
+        let e = err(&format!("{MIN}bogus = 1\n"));
+        assert!(e.contains("/etc/lfi/x.toml") && e.contains("bogus"), "{e}");
+        let e = err(&MIN.replace("unit_id = 1", "unit_id = 300"));
+        assert!(e.contains("camera[0].unit_id = 300") && e.contains("1..=247"), "{e}");
+        let e = err(&format!("[modbus]\nmax_connections = 0\n{MIN}"));
+        assert!(e.contains("modbus.max_connections = 0"), "{e}");
+        let e = err(&format!("[modbus]\nwrite_allow = [\"10.0.0.300\"]\n{MIN}"));
+        assert!(e.contains("modbus.write_allow[0]") && e.contains("10.0.0.300"), "{e}");
+        let e = err(&format!("[result]\nqueue_depth = -1\n{MIN}"));
+        assert!(e.contains("result.queue_depth = -1"), "{e}");
+        let e = err(&MIN.replace("kind = \"sim\"", "kind = \"webcam\""));
+        assert!(e.contains("camera[0].source.kind = \"webcam\""), "{e}");
+        let e = err(&MIN.replace("kind = \"sim\"", "kind = \"dir\""));
+        assert!(e.contains("camera[0].source.path"), "{e}");
+        let e = err(&format!("{MIN}path = \"/x\"\n"));
+        assert!(e.contains("source.path") && e.contains("does not apply"), "{e}");
+        let e = err(&format!("{}\n[[camera]]\nunit_id = 1\nkb = \"k.toml\"\n[camera.source]\nkind = \"sim\"\n", MIN));
+        assert!(e.contains("camera[1].unit_id = 1") && e.contains("another camera"), "{e}");
+        let e = err("[modbus]\nbind = \"nowhere\"\n");
+        assert!(e.contains("modbus.bind"), "{e}");
+        let e = err(&format!("{MIN}[camera.calibration]\npoints = [[0, 0, 0, 0]]\n"));
+        assert!(e.contains("calibration.points") && e.contains("at least 4"), "{e}");
+    }
+}

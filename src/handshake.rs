@@ -1,0 +1,448 @@
+//! The PLC handshake of one camera as a plain state machine: register writes and camera events
+//! in, register contents and commands out. No sockets, no clock: the caller passes the time.
+//!
+//! The protocol is the smart-camera one controls engineers know: TRIGGER -> TRIGGER_ACK + BUSY
+//! -> results queued -> BUSY clears; RESULT_VALID while the queue holds results; RESULT_ACK =
+//! RESULT_SEQ pops the oldest. `register-map.md` documents every register.
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+use crate::modbus::map::{self, addr, error_code, robot_status, status};
+use crate::vision::Reason;
+
+/// One part's result as the PLC sees it, in the robot frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PartResult {
+    pub accepted: bool,
+    pub reason: Reason,
+    pub type_id: u16,
+    /// 0 unknown, 1 up, 2 down.
+    pub face: u16,
+    pub angle_deg: f64,
+    pub x_mm: f64,
+    pub y_mm: f64,
+    pub confidence: f64,
+}
+
+/// What became of an acquisition.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Outcome {
+    /// The frame was estimated; parts in picking order (empty: no part on the belt).
+    Parts { parts: Vec<PartResult>, processing_ms: f64 },
+    /// No frame, or an unusable one; `code` is an ERROR_CODE value.
+    Failed { code: u16 },
+}
+
+/// What the appliance must do after an event.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Command {
+    /// Take a frame and report it with [`Handshake::complete`] under this acquisition id.
+    Acquire { acq_id: u16 },
+}
+
+/// Float word order in the result block.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum WordOrder {
+    #[default]
+    HighFirst,
+    LowFirst,
+}
+
+/// A queued result.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Queued {
+    pub seq: u16,
+    pub acq_id: u16,
+    pub part: PartResult,
+    /// 1-based index in picking order; 0 (with `count` 0) for a no-part or frame-error result.
+    pub index: u16,
+    pub count: u16,
+    pub processing_ms: f64,
+}
+
+/// The robot link's state as shown in registers 110..118.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct RobotView {
+    pub bits: u16,
+    pub queue: u16,
+    pub delivered: u16,
+    pub ack_timeouts: u16,
+    pub wrong_acks: u16,
+    pub reconnects: u16,
+    pub dropped: u16,
+    pub data_seq: u16,
+    pub ack_seq: u16,
+}
+
+/// Counters the operator sees beside the registers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Counters {
+    pub acquisitions: u64,
+    pub results: u64,
+    pub dropped: u64,
+    pub missed_triggers: u64,
+    pub ignored_acks: u64,
+}
+
+/// Settings of one camera's handshake.
+#[derive(Debug, Clone)]
+pub struct Settings {
+    pub queue_depth: usize,
+    pub online: bool,
+    pub word_order: WordOrder,
+    pub types_enrolled: u16,
+}
+
+/// One camera's registers and result queue.
+#[derive(Debug, Clone)]
+pub struct Handshake {
+    settings: Settings,
+    trigger: bool,
+    result_ack: u16,
+    online: bool,
+    expected_type: u16,
+    trigger_ack: bool,
+    busy: Option<(u16, Duration)>,
+    error: bool,
+    error_code: u16,
+    overrun: bool,
+    camera_ok: bool,
+    heartbeat: u16,
+    acq_count: u16,
+    overrun_count: u16,
+    missed: u16,
+    ack_ignored: u16,
+    last_cycle: u16,
+    next_seq: u16,
+    queue: VecDeque<Queued>,
+    robot: RobotView,
+    counters: Counters,
+}
+
+fn sat_u16(v: f64) -> u16 {
+    v.round().clamp(0.0, 65535.0) as u16
+}
+fn sat_i16(v: f64) -> u16 {
+    (v.round().clamp(-32768.0, 32767.0) as i16) as u16
+}
+
+/// Angle in degrees to the ANGLE register: 0.01 deg, -18000..17999.
+pub fn angle_word(deg: f64) -> u16 {
+    let mut a = (deg + 180.0).rem_euclid(360.0) - 180.0;
+    if (a * 100.0).round() >= 18000.0 {
+        a -= 360.0;
+    }
+    sat_i16(a * 100.0)
+}
+
+impl Handshake {
+    pub fn new(settings: Settings) -> Self {
+        Self {
+            online: settings.online,
+            settings,
+            trigger: false,
+            result_ack: 0,
+            expected_type: 0,
+            trigger_ack: false,
+            busy: None,
+            error: false,
+            error_code: error_code::NONE,
+            overrun: false,
+            camera_ok: true,
+            heartbeat: 0,
+            acq_count: 0,
+            overrun_count: 0,
+            missed: 0,
+            ack_ignored: 0,
+            last_cycle: 0,
+            next_seq: 1,
+            queue: VecDeque::new(),
+            robot: RobotView::default(),
+            counters: Counters::default(),
+        }
+    }
+
+    /// READY = ONLINE and not BUSY and CAMERA_OK (a full queue does not clear it).
+    pub fn ready(&self) -> bool {
+        self.online && self.busy.is_none() && self.camera_ok
+    }
+
+    pub fn status(&self) -> u16 {
+        let mut s = 0;
+        let mut set = |bit: u16, on: bool| {
+            if on {
+                s |= bit;
+            }
+        };
+        set(status::READY, self.ready());
+        set(status::TRIGGER_ACK, self.trigger_ack);
+        set(status::BUSY, self.busy.is_some());
+        set(status::RESULT_VALID, !self.queue.is_empty());
+        set(status::RESULT_OVERRUN, self.overrun);
+        set(status::ERROR, self.error);
+        set(status::ONLINE, self.online);
+        set(status::CAMERA_OK, self.camera_ok);
+        s
+    }
+
+    pub fn queue(&self) -> &VecDeque<Queued> {
+        &self.queue
+    }
+    pub fn counters(&self) -> Counters {
+        self.counters
+    }
+    pub fn expected_type(&self) -> u16 {
+        self.expected_type
+    }
+    pub fn busy(&self) -> bool {
+        self.busy.is_some()
+    }
+
+    /// The value of one register (reserved addresses read 0).
+    pub fn word(&self, a: u16) -> u16 {
+        let head = self.queue.front();
+        let float = |v: f32, second: bool| {
+            let bits = v.to_bits();
+            let (hi, lo) = ((bits >> 16) as u16, bits as u16);
+            match (self.settings.word_order, second) {
+                (WordOrder::HighFirst, false) | (WordOrder::LowFirst, true) => hi,
+                _ => lo,
+            }
+        };
+        match a {
+            addr::TRIGGER => self.trigger as u16,
+            addr::RESULT_ACK => self.result_ack,
+            addr::CLEAR_ERROR => 0,
+            addr::ONLINE => self.online as u16,
+            addr::EXPECTED_TYPE => self.expected_type,
+            addr::STATUS => self.status(),
+            addr::HEARTBEAT => self.heartbeat,
+            addr::ERROR_CODE => self.error_code,
+            addr::ACQ_COUNT => self.acq_count,
+            addr::RESULTS_PENDING => self.queue.len().min(65535) as u16,
+            addr::OVERRUN_COUNT => self.overrun_count,
+            addr::MISSED_TRIGGERS => self.missed,
+            addr::MAP_VERSION => map::MAP_VERSION,
+            addr::LAST_CYCLE_TIME => self.last_cycle,
+            addr::TYPES_ENROLLED => self.settings.types_enrolled,
+            addr::ROBOT_STATUS => self.robot.bits,
+            addr::ROBOT_QUEUE => self.robot.queue,
+            addr::ROBOT_DELIVERED => self.robot.delivered,
+            addr::ROBOT_ACK_TIMEOUTS => self.robot.ack_timeouts,
+            addr::ROBOT_WRONG_ACKS => self.robot.wrong_acks,
+            addr::ROBOT_RECONNECTS => self.robot.reconnects,
+            addr::ROBOT_DROPPED => self.robot.dropped,
+            addr::ROBOT_DATA_SEQ => self.robot.data_seq,
+            addr::ROBOT_ACK_SEQ => self.robot.ack_seq,
+            addr::RESULT_ACK_IGNORED => self.ack_ignored,
+            addr::RESULT_SEQ..=219 => {
+                let Some(q) = head else { return 0 };
+                let p = &q.part;
+                match a {
+                    addr::RESULT_SEQ => q.seq,
+                    addr::ACQ_ID => q.acq_id,
+                    addr::DECISION => {
+                        if p.accepted {
+                            1
+                        } else {
+                            2
+                        }
+                    }
+                    addr::REASON => p.reason.code(),
+                    addr::TYPE_ID => p.type_id,
+                    addr::FACE => p.face,
+                    addr::ANGLE => angle_word(p.angle_deg),
+                    addr::X => sat_i16(p.x_mm * 10.0),
+                    addr::Y => sat_i16(p.y_mm * 10.0),
+                    addr::CONFIDENCE => sat_u16(p.confidence * 1000.0).min(1000),
+                    addr::PART_INDEX => q.index,
+                    addr::PART_COUNT => q.count,
+                    212 | 213 => float(((p.angle_deg + 180.0).rem_euclid(360.0) - 180.0) as f32, a == 213),
+                    214 | 215 => float(p.x_mm as f32, a == 215),
+                    216 | 217 => float(p.y_mm as f32, a == 217),
+                    addr::PROCESSING_TIME => sat_u16(q.processing_ms * 10.0),
+                    _ => 0,
+                }
+            }
+            _ => 0,
+        }
+    }
+
+    /// Registers `start..start+count` in one consistent snapshot.
+    pub fn read(&self, start: u16, count: u16) -> Vec<u16> {
+        (start..start.saturating_add(count)).map(|a| self.word(a)).collect()
+    }
+
+    /// A PLC write of one register. The caller has checked that the address is writable and the
+    /// value allowed (see [`crate::modbus::service`]).
+    pub fn write(&mut self, a: u16, v: u16, now: Duration) -> Option<Command> {
+        match a {
+            addr::TRIGGER => {
+                let edge = v == 1 && !self.trigger;
+                self.trigger = v == 1;
+                if v == 0 {
+                    self.trigger_ack = false;
+                }
+                if !edge {
+                    return None;
+                }
+                if !self.ready() || self.error {
+                    self.missed = self.missed.wrapping_add(1);
+                    self.counters.missed_triggers += 1;
+                    return None;
+                }
+                self.trigger_ack = true;
+                Some(self.begin(now))
+            }
+            addr::RESULT_ACK => {
+                self.result_ack = v;
+                match self.queue.front() {
+                    Some(q) if q.seq == v => {
+                        self.queue.pop_front();
+                    }
+                    _ => {
+                        self.ack_ignored = self.ack_ignored.wrapping_add(1);
+                        self.counters.ignored_acks += 1;
+                    }
+                }
+                None
+            }
+            addr::CLEAR_ERROR => {
+                if v == 1 {
+                    self.error = false;
+                    self.error_code = error_code::NONE;
+                    self.overrun = false;
+                }
+                None
+            }
+            addr::ONLINE => {
+                self.online = v == 1;
+                None
+            }
+            addr::EXPECTED_TYPE => {
+                self.expected_type = v;
+                None
+            }
+            _ => None,
+        }
+    }
+
+    fn begin(&mut self, now: Duration) -> Command {
+        self.acq_count = self.acq_count.wrapping_add(1);
+        self.counters.acquisitions += 1;
+        self.busy = Some((self.acq_count, now));
+        Command::Acquire { acq_id: self.acq_count }
+    }
+
+    /// Free-running cameras start an acquisition for each frame the source yields, when READY
+    /// and not in ERROR; otherwise the frame is skipped (None).
+    pub fn free_run(&mut self, now: Duration) -> Option<Command> {
+        if self.ready() && !self.error { Some(self.begin(now)) } else { None }
+    }
+
+    /// Reports an acquisition: queues its results (before BUSY clears, so a PLC that waits for
+    /// BUSY = 0 after TRIGGER_ACK sees them). Reports for other acquisitions are ignored.
+    pub fn complete(&mut self, acq_id: u16, outcome: Outcome, now: Duration) {
+        let Some((busy_id, started)) = self.busy else { return };
+        if busy_id != acq_id {
+            return;
+        }
+        let mut results: Vec<Queued> = Vec::new();
+        match outcome {
+            Outcome::Parts { parts, processing_ms } if parts.is_empty() => {
+                results.push(Queued { seq: 0, acq_id, part: no_part(Reason::NoPart), index: 0, count: 0, processing_ms });
+            }
+            Outcome::Parts { parts, processing_ms } => {
+                let count = parts.len().min(65535) as u16;
+                for (i, mut p) in parts.into_iter().enumerate() {
+                    if self.expected_type != 0 && p.accepted && p.type_id != self.expected_type {
+                        p.accepted = false;
+                        p.reason = Reason::WrongType;
+                    }
+                    results.push(Queued { seq: 0, acq_id, part: p, index: (i + 1).min(65535) as u16, count, processing_ms });
+                }
+            }
+            Outcome::Failed { code } => {
+                self.error = true;
+                self.error_code = code;
+                results.push(Queued { seq: 0, acq_id, part: no_part(Reason::FrameError), index: 0, count: 0, processing_ms: 0.0 });
+            }
+        }
+        for mut r in results {
+            if self.queue.len() >= self.settings.queue_depth {
+                self.overrun = true;
+                self.overrun_count = self.overrun_count.wrapping_add(1);
+                self.counters.dropped += 1;
+                continue;
+            }
+            r.seq = self.next_seq;
+            self.next_seq = if self.next_seq == u16::MAX { 1 } else { self.next_seq + 1 };
+            self.counters.results += 1;
+            self.queue.push_back(r);
+        }
+        self.last_cycle = sat_u16(now.saturating_sub(started).as_secs_f64() * 1e4);
+        self.busy = None;
+    }
+
+    pub fn set_camera_ok(&mut self, ok: bool) {
+        self.camera_ok = ok;
+    }
+    pub fn camera_ok(&self) -> bool {
+        self.camera_ok
+    }
+
+    /// Advances the heartbeat: one count per whole second since the appliance started.
+    pub fn tick(&mut self, since_start: Duration) {
+        self.heartbeat = (since_start.as_secs() % 65536) as u16;
+    }
+
+    pub fn set_robot(&mut self, view: RobotView) {
+        self.robot = view;
+    }
+    pub fn robot(&self) -> RobotView {
+        self.robot
+    }
+
+    pub fn settings(&self) -> &Settings {
+        &self.settings
+    }
+}
+
+fn no_part(reason: Reason) -> PartResult {
+    PartResult { accepted: false, reason, type_id: 0, face: 0, angle_deg: 0.0, x_mm: 0.0, y_mm: 0.0, confidence: 0.0 }
+}
+
+/// Robot-link bits for [`RobotView::bits`].
+pub fn robot_bits(configured: bool, connected: bool, waiting: bool, timed_out: bool, ready: bool, fault: bool) -> u16 {
+    let mut b = 0;
+    for (on, bit) in [
+        (configured, robot_status::CONFIGURED),
+        (connected, robot_status::CONNECTED),
+        (waiting, robot_status::WAITING_ACK),
+        (timed_out, robot_status::ACK_TIMEOUT),
+        (ready, robot_status::ROBOT_READY),
+        (fault, robot_status::ROBOT_FAULT),
+    ] {
+        if on {
+            b |= bit;
+        }
+    }
+    b
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn angle_words_wrap_into_the_signed_range() {
+        assert_eq!(angle_word(0.0), 0);
+        assert_eq!(angle_word(90.0) as i16, 9000);
+        assert_eq!(angle_word(270.0) as i16, -9000);
+        assert_eq!(angle_word(180.0) as i16, -18000);
+        assert_eq!(angle_word(179.996) as i16, -18000);
+        assert_eq!(angle_word(179.99) as i16, 17999);
+        assert_eq!(angle_word(-0.004) as i16, 0);
+    }
+}

@@ -1,0 +1,326 @@
+//! The PLC register map: one table, from which the server, the tests and `register-map.md`
+//! are derived. Addresses are 0-based protocol addresses (PLC tools show 400001 + address).
+
+/// Who may write a register.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Access {
+    /// Written by the PLC (FC6/FC16), read back as written.
+    ReadWrite,
+    /// Written by the appliance only; a PLC write is exception 0x02.
+    ReadOnly,
+}
+
+/// How a register's 16 bits are to be read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    U16,
+    I16,
+    Bits,
+    /// One half of an IEEE-754 float32 (word order per camera).
+    F32,
+}
+
+/// One register (or the first word of a float).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Register {
+    pub addr: u16,
+    pub name: &'static str,
+    pub access: Access,
+    pub kind: Kind,
+    /// Scaling and unit, as a PLC programmer needs it.
+    pub unit: &'static str,
+    /// Values a PLC may write (None: any).
+    pub allowed: Option<&'static [u16]>,
+    pub doc: &'static str,
+}
+
+/// Highest address of the map plus one; any address at or beyond is exception 0x02.
+pub const SIZE: u16 = 300;
+/// Value of MAP_VERSION: bumped when a PLC program written for the old map would break.
+pub const MAP_VERSION: u16 = 1;
+
+pub mod addr {
+    pub const TRIGGER: u16 = 0;
+    pub const RESULT_ACK: u16 = 1;
+    pub const CLEAR_ERROR: u16 = 2;
+    pub const ONLINE: u16 = 3;
+    pub const EXPECTED_TYPE: u16 = 4;
+    pub const STATUS: u16 = 100;
+    pub const HEARTBEAT: u16 = 101;
+    pub const ERROR_CODE: u16 = 102;
+    pub const ACQ_COUNT: u16 = 103;
+    pub const RESULTS_PENDING: u16 = 104;
+    pub const OVERRUN_COUNT: u16 = 105;
+    pub const MISSED_TRIGGERS: u16 = 106;
+    pub const MAP_VERSION: u16 = 107;
+    pub const LAST_CYCLE_TIME: u16 = 108;
+    pub const TYPES_ENROLLED: u16 = 109;
+    pub const ROBOT_STATUS: u16 = 110;
+    pub const ROBOT_QUEUE: u16 = 111;
+    pub const ROBOT_DELIVERED: u16 = 112;
+    pub const ROBOT_ACK_TIMEOUTS: u16 = 113;
+    pub const ROBOT_WRONG_ACKS: u16 = 114;
+    pub const ROBOT_RECONNECTS: u16 = 115;
+    pub const ROBOT_DROPPED: u16 = 116;
+    pub const ROBOT_DATA_SEQ: u16 = 117;
+    pub const ROBOT_ACK_SEQ: u16 = 118;
+    pub const RESULT_ACK_IGNORED: u16 = 120;
+    pub const RESULT_SEQ: u16 = 200;
+    pub const ACQ_ID: u16 = 201;
+    pub const DECISION: u16 = 202;
+    pub const REASON: u16 = 203;
+    pub const TYPE_ID: u16 = 204;
+    pub const FACE: u16 = 205;
+    pub const ANGLE: u16 = 206;
+    pub const X: u16 = 207;
+    pub const Y: u16 = 208;
+    pub const CONFIDENCE: u16 = 209;
+    pub const PART_INDEX: u16 = 210;
+    pub const PART_COUNT: u16 = 211;
+    pub const ANGLE_F32: u16 = 212;
+    pub const X_F32: u16 = 214;
+    pub const Y_F32: u16 = 216;
+    pub const PROCESSING_TIME: u16 = 218;
+}
+
+/// STATUS (100) bits.
+pub mod status {
+    pub const READY: u16 = 1 << 0;
+    pub const TRIGGER_ACK: u16 = 1 << 1;
+    pub const BUSY: u16 = 1 << 2;
+    pub const RESULT_VALID: u16 = 1 << 3;
+    pub const RESULT_OVERRUN: u16 = 1 << 4;
+    pub const ERROR: u16 = 1 << 5;
+    pub const ONLINE: u16 = 1 << 6;
+    pub const CAMERA_OK: u16 = 1 << 7;
+    pub const NAMES: [&str; 8] = ["READY", "TRIGGER_ACK", "BUSY", "RESULT_VALID", "RESULT_OVERRUN", "ERROR", "ONLINE", "CAMERA_OK"];
+}
+
+/// ROBOT_STATUS (110) bits.
+pub mod robot_status {
+    pub const CONFIGURED: u16 = 1 << 0;
+    pub const CONNECTED: u16 = 1 << 1;
+    pub const WAITING_ACK: u16 = 1 << 2;
+    pub const ACK_TIMEOUT: u16 = 1 << 3;
+    pub const ROBOT_READY: u16 = 1 << 4;
+    pub const ROBOT_FAULT: u16 = 1 << 5;
+    pub const NAMES: [&str; 6] = ["CONFIGURED", "CONNECTED", "WAITING_ACK", "ACK_TIMEOUT", "ROBOT_READY", "ROBOT_FAULT"];
+}
+
+/// ERROR_CODE (102) values.
+pub mod error_code {
+    pub const NONE: u16 = 0;
+    /// The camera delivered no frame (source failed, timed out, or is gone).
+    pub const CAMERA: u16 = 1;
+    /// The frame could not be estimated (unreadable, wrong size or format).
+    pub const FRAME: u16 = 2;
+    /// The knowledge base could not be used.
+    pub const KNOWLEDGE_BASE: u16 = 3;
+}
+
+use Access::*;
+use Kind::*;
+
+const BOOL: &[u16] = &[0, 1];
+
+const fn reg(addr: u16, name: &'static str, access: Access, kind: Kind, unit: &'static str, doc: &'static str) -> Register {
+    Register { addr, name, access, kind, unit, allowed: None, doc }
+}
+const fn flag(addr: u16, name: &'static str, doc: &'static str) -> Register {
+    Register { addr, name, access: ReadWrite, kind: U16, unit: "0/1", allowed: Some(BOOL), doc }
+}
+
+/// Every defined register, in address order. Addresses not listed below SIZE are reserved:
+/// they read as 0 and refuse writes.
+pub const MAP: &[Register] = &[
+    flag(addr::TRIGGER, "TRIGGER", "0->1 edge starts one acquisition; hold 1 until TRIGGER_ACK, then write 0."),
+    reg(
+        addr::RESULT_ACK,
+        "RESULT_ACK",
+        ReadWrite,
+        U16,
+        "seq",
+        "Write the RESULT_SEQ being consumed: the result is removed and the next shown. Other values are ignored and counted (RESULT_ACK_IGNORED).",
+    ),
+    flag(addr::CLEAR_ERROR, "CLEAR_ERROR", "Write 1: clears ERROR, ERROR_CODE and RESULT_OVERRUN. Reads 0."),
+    flag(addr::ONLINE, "ONLINE", "1 online, 0 offline (triggers are missed). Start-up value from the configuration."),
+    reg(
+        addr::EXPECTED_TYPE,
+        "EXPECTED_TYPE",
+        ReadWrite,
+        U16,
+        "type id",
+        "0 accepts any type; otherwise accepted parts of other types are rejected with REASON 6 (wrong type).",
+    ),
+    reg(
+        addr::STATUS,
+        "STATUS",
+        ReadOnly,
+        Bits,
+        "bits",
+        "b0 READY (ONLINE and not BUSY and CAMERA_OK), b1 TRIGGER_ACK, b2 BUSY, b3 RESULT_VALID, b4 RESULT_OVERRUN, b5 ERROR, b6 ONLINE, b7 CAMERA_OK.",
+    ),
+    reg(addr::HEARTBEAT, "HEARTBEAT", ReadOnly, U16, "count", "+1 every second (wraps)."),
+    reg(addr::ERROR_CODE, "ERROR_CODE", ReadOnly, U16, "code", "0 none, 1 camera (no frame), 2 frame (unusable), 3 knowledge base."),
+    reg(
+        addr::ACQ_COUNT,
+        "ACQ_COUNT",
+        ReadOnly,
+        U16,
+        "count",
+        "Accepted triggers (wraps); a result's ACQ_ID is the ACQ_COUNT of its frame.",
+    ),
+    reg(addr::RESULTS_PENDING, "RESULTS_PENDING", ReadOnly, U16, "count", "Results queued, including the one shown."),
+    reg(addr::OVERRUN_COUNT, "OVERRUN_COUNT", ReadOnly, U16, "count", "Results dropped because the queue was full (wraps)."),
+    reg(
+        addr::MISSED_TRIGGERS,
+        "MISSED_TRIGGERS",
+        ReadOnly,
+        U16,
+        "count",
+        "Trigger edges while BUSY, offline or in ERROR: nothing started (wraps).",
+    ),
+    reg(addr::MAP_VERSION, "MAP_VERSION", ReadOnly, U16, "version", "1."),
+    reg(
+        addr::LAST_CYCLE_TIME,
+        "LAST_CYCLE_TIME",
+        ReadOnly,
+        U16,
+        "0.1 ms",
+        "Trigger to results queued, last acquisition (saturates at 65535).",
+    ),
+    reg(addr::TYPES_ENROLLED, "TYPES_ENROLLED", ReadOnly, U16, "count", "Part types in the knowledge base."),
+    reg(
+        addr::ROBOT_STATUS,
+        "ROBOT_STATUS",
+        ReadOnly,
+        Bits,
+        "bits",
+        "Robot link: b0 CONFIGURED, b1 CONNECTED, b2 WAITING_ACK, b3 ACK_TIMEOUT, b4 ROBOT_READY, b5 ROBOT_FAULT.",
+    ),
+    reg(addr::ROBOT_QUEUE, "ROBOT_QUEUE", ReadOnly, U16, "count", "Parts waiting for the robot, including the one being handed over."),
+    reg(addr::ROBOT_DELIVERED, "ROBOT_DELIVERED", ReadOnly, U16, "count", "Parts the robot acknowledged (wraps)."),
+    reg(
+        addr::ROBOT_ACK_TIMEOUTS,
+        "ROBOT_ACK_TIMEOUTS",
+        ReadOnly,
+        U16,
+        "count",
+        "Times the robot did not acknowledge within ack_timeout_s (wraps).",
+    ),
+    reg(addr::ROBOT_WRONG_ACKS, "ROBOT_WRONG_ACKS", ReadOnly, U16, "count", "ACK_SEQ values that matched no part sent (ignored; wraps)."),
+    reg(
+        addr::ROBOT_RECONNECTS,
+        "ROBOT_RECONNECTS",
+        ReadOnly,
+        U16,
+        "count",
+        "Connections to the robot controller made after the first (wraps).",
+    ),
+    reg(addr::ROBOT_DROPPED, "ROBOT_DROPPED", ReadOnly, U16, "count", "Parts not queued for the robot because its queue was full (wraps)."),
+    reg(addr::ROBOT_DATA_SEQ, "ROBOT_DATA_SEQ", ReadOnly, U16, "seq", "Last DATA_SEQ written to the robot (0 none yet)."),
+    reg(addr::ROBOT_ACK_SEQ, "ROBOT_ACK_SEQ", ReadOnly, U16, "seq", "Last ACK_SEQ read from the robot."),
+    reg(addr::RESULT_ACK_IGNORED, "RESULT_ACK_IGNORED", ReadOnly, U16, "count", "RESULT_ACK writes that named no pending result (wraps)."),
+    reg(
+        addr::RESULT_SEQ,
+        "RESULT_SEQ",
+        ReadOnly,
+        U16,
+        "seq",
+        "Oldest unacknowledged result: 1..65535, wraps to 1; 0 when the queue is empty.",
+    ),
+    reg(addr::ACQ_ID, "ACQ_ID", ReadOnly, U16, "count", "ACQ_COUNT of the frame this result belongs to."),
+    reg(addr::DECISION, "DECISION", ReadOnly, U16, "code", "0 none (queue empty; the whole result block reads 0), 1 accept, 2 reject."),
+    reg(
+        addr::REASON,
+        "REASON",
+        ReadOnly,
+        U16,
+        "code",
+        "0 ok, 1 no part, 2 unknown type, 3 low confidence, 4 ambiguous, 5 touching/overlapping, 6 wrong type, 7 frame error, 8 at the image border.",
+    ),
+    reg(addr::TYPE_ID, "TYPE_ID", ReadOnly, U16, "type id", "0 when no type."),
+    reg(addr::FACE, "FACE", ReadOnly, U16, "code", "0 unknown, 1 up, 2 down."),
+    reg(addr::ANGLE, "ANGLE", ReadOnly, I16, "0.01 deg", "-18000..17999, robot frame."),
+    reg(addr::X, "X", ReadOnly, I16, "0.1 mm", "Robot frame (saturates at -32768/32767; the float copy is exact)."),
+    reg(addr::Y, "Y", ReadOnly, I16, "0.1 mm", "Robot frame (saturates at -32768/32767; the float copy is exact)."),
+    reg(addr::CONFIDENCE, "CONFIDENCE", ReadOnly, U16, "0.001", "0..1000."),
+    reg(addr::PART_INDEX, "PART_INDEX", ReadOnly, U16, "index", "1..PART_COUNT in picking order; 0 for a no-part result."),
+    reg(addr::PART_COUNT, "PART_COUNT", ReadOnly, U16, "count", "Parts in this frame (0 for a no-part result)."),
+    reg(addr::ANGLE_F32, "ANGLE_F32", ReadOnly, F32, "deg", "ANGLE as float32, words 212-213."),
+    reg(addr::X_F32, "X_F32", ReadOnly, F32, "mm", "X as float32, words 214-215."),
+    reg(addr::Y_F32, "Y_F32", ReadOnly, F32, "mm", "Y as float32, words 216-217."),
+    reg(addr::PROCESSING_TIME, "PROCESSING_TIME", ReadOnly, U16, "0.1 ms", "Estimate time of this result's frame (saturates)."),
+];
+
+/// The register defined at `addr` (the first word of a float names the float; its second word
+/// returns the same entry).
+pub fn lookup(addr: u16) -> Option<&'static Register> {
+    MAP.iter().find(|r| r.addr == addr || (r.kind == Kind::F32 && r.addr + 1 == addr))
+}
+
+/// Whether a PLC may write `addr`.
+pub fn writable(addr: u16) -> bool {
+    lookup(addr).is_some_and(|r| r.access == Access::ReadWrite)
+}
+
+fn kind_name(k: Kind) -> &'static str {
+    match k {
+        U16 => "uint16",
+        I16 => "int16",
+        Bits => "bits",
+        F32 => "float32 (2 words)",
+    }
+}
+
+/// The register map as Markdown (the body of `register-map.md`).
+pub fn markdown() -> String {
+    let mut s = String::new();
+    s.push_str("# lfi-bridge register map\n\n");
+    s.push_str("Generated from `src/modbus/map.rs` by `lfi-bridge register-map`; a test fails if this file and the table differ.\n\n");
+    s.push_str(&format!(
+        "Holding registers, function codes 3 (read), 6 and 16 (write). MAP_VERSION = {MAP_VERSION}. \"Address\" is the 0-based protocol address; \"PLC\" the 1-based number PLC tools show (400001 + address). Addresses 0..{} not listed are reserved: they read as 0 and refuse writes (exception 0x02).\n\n",
+        SIZE - 1
+    ));
+    s.push_str("Each camera is its own Modbus unit id (unit 0 and 255 reach the first camera; an unknown unit id gets exception 0x0B). Floats are IEEE-754 in two registers, high word first unless the camera's `float_word_order = \"low-first\"`. A read of 100..220 in one request is one consistent snapshot.\n\n");
+    s.push_str("| Address | PLC | Name | Access | Type | Unit | Description |\n|---:|---:|---|---|---|---|---|\n");
+    for r in MAP {
+        let access = match r.access {
+            ReadWrite => "R/W",
+            ReadOnly => "R",
+        };
+        let address = if r.kind == F32 { format!("{}-{}", r.addr, r.addr + 1) } else { r.addr.to_string() };
+        let plc = if r.kind == F32 {
+            format!("{}-{}", 400_001 + r.addr as u32, 400_002 + r.addr as u32)
+        } else {
+            (400_001 + r.addr as u32).to_string()
+        };
+        s.push_str(&format!("| {address} | {plc} | {} | {access} | {} | {} | {} |\n", r.name, kind_name(r.kind), r.unit, r.doc));
+    }
+    s.push_str("\n## Exceptions\n\nChecked in the order of the Modbus specification: a unit id that is no camera gets 0x0B first; then function, quantity, address, value.\n\n");
+    s.push_str("| Code | When |\n|---|---|\n");
+    s.push_str(
+        "| 0x01 Illegal function | a function other than 3, 6, 16; a write from a client not in `write_allow` (when set; logged) |\n",
+    );
+    s.push_str("| 0x03 Illegal data value | read quantity 0 or over 125; write quantity 0 or over 123; FC16 byte count not 2 x quantity; a malformed request |\n");
+    s.push_str("| 0x02 Illegal data address | any address outside 0..299; a write to a read-only or reserved register |\n");
+    s.push_str("| 0x03 Illegal data value | a value other than 0 or 1 written to TRIGGER, CLEAR_ERROR or ONLINE |\n");
+    s.push_str("| 0x0B Gateway target failed | a unit id that is no camera |\n");
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_table_is_ordered_unique_and_inside_the_map() {
+        for w in MAP.windows(2) {
+            let end = w[0].addr + if w[0].kind == Kind::F32 { 2 } else { 1 };
+            assert!(end <= w[1].addr, "{} overlaps {}", w[0].name, w[1].name);
+        }
+        assert!(MAP.iter().all(|r| r.addr < SIZE));
+        assert!(writable(addr::TRIGGER) && !writable(addr::STATUS) && !writable(5) && !writable(213));
+        assert_eq!(lookup(213).unwrap().name, "ANGLE_F32");
+    }
+}

@@ -1,0 +1,134 @@
+//! The robot link's driver: a tokio-modbus client that connects (and reconnects with back-off),
+//! polls the robot's output words, and performs the [`super::Link`]'s writes.
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use tokio_modbus::prelude::*;
+use tokio_util::sync::CancellationToken;
+
+use super::{Action, Link, output};
+use crate::config::RobotConfig;
+use crate::handshake::{PartResult, RobotView};
+
+async fn resolve(address: &str) -> std::io::Result<std::net::SocketAddr> {
+    tokio::net::lookup_host(address)
+        .await?
+        .next()
+        .ok_or_else(|| std::io::Error::new(std::io::ErrorKind::NotFound, format!("{address} resolves to no address")))
+}
+
+fn flat<T>(r: tokio_modbus::Result<T>) -> Result<T, String> {
+    match r {
+        Ok(Ok(v)) => Ok(v),
+        Ok(Err(e)) => Err(format!("robot answered exception {e:?}")),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// Runs the link until `shutdown`; parts arrive on `parts` (acquisition id, result).
+pub async fn run(
+    camera: String,
+    cfg: RobotConfig,
+    mut parts: tokio::sync::mpsc::UnboundedReceiver<(u16, PartResult)>,
+    view: Arc<Mutex<RobotView>>,
+    shutdown: CancellationToken,
+) {
+    let mut link = Link::new(cfg.queue_depth, cfg.ack_timeout);
+    let start = Instant::now();
+    let mut backoff = Duration::from_millis(100);
+    let mut last_complaint: Option<Instant> = None;
+    let publish = |link: &Link| *view.lock().unwrap_or_else(|p| p.into_inner()) = link.view();
+    let drain = |link: &mut Link, parts: &mut tokio::sync::mpsc::UnboundedReceiver<(u16, PartResult)>| {
+        while let Ok((acq, p)) = parts.try_recv() {
+            if !link.enqueue(p) {
+                tracing::warn!(camera = %camera, acq, "robot queue full ({} parts): part dropped", cfg.queue_depth);
+            }
+        }
+    };
+    'outer: while !shutdown.is_cancelled() {
+        drain(&mut link, &mut parts);
+        publish(&link);
+        let connected = match resolve(&cfg.address).await {
+            Ok(addr) => tokio::time::timeout(Duration::from_secs(2), tcp::connect_slave(addr, Slave(cfg.unit_id)))
+                .await
+                .map_err(|_| "connect timed out".to_string())
+                .and_then(|r| r.map_err(|e| e.to_string())),
+            Err(e) => Err(e.to_string()),
+        };
+        let mut ctx = match connected {
+            Ok(c) => c,
+            Err(e) => {
+                if last_complaint.is_none_or(|t| t.elapsed() > Duration::from_secs(30)) {
+                    tracing::warn!(camera = %camera, "robot controller {} unreachable: {e}; retrying (parts waiting: {})", cfg.address, link.pending());
+                    last_complaint = Some(Instant::now());
+                }
+                tokio::select! {
+                    _ = shutdown.cancelled() => break,
+                    _ = tokio::time::sleep(backoff) => {}
+                }
+                backoff = (backoff * 2).min(Duration::from_secs(5));
+                continue;
+            }
+        };
+        backoff = Duration::from_millis(100);
+        last_complaint = None;
+        link.on_connected();
+        tracing::info!(camera = %camera, "connected to robot controller {} (unit {})", cfg.address, cfg.unit_id);
+        let mut heartbeat: u16 = 0;
+        let mut last_beat = Instant::now() - Duration::from_secs(2);
+        let why = loop {
+            drain(&mut link, &mut parts);
+            let outputs = if cfg.output_function == 4 {
+                ctx.read_input_registers(cfg.output_words_at, output::COUNT).await
+            } else {
+                ctx.read_holding_registers(cfg.output_words_at, output::COUNT).await
+            };
+            let words = match flat(outputs) {
+                Ok(w) if w.len() == 2 => w,
+                Ok(w) => break format!("robot returned {} output words, expected 2", w.len()),
+                Err(e) => break e,
+            };
+            let was_waiting = link.view().bits & crate::modbus::map::robot_status::ACK_TIMEOUT;
+            if let Some(Action::Send { seq, words: w }) = link.on_outputs(words[0], words[1], start.elapsed()) {
+                let mut all = w.to_vec();
+                all.push(heartbeat);
+                let sent = async {
+                    flat(ctx.write_multiple_registers(cfg.input_words_at + super::input::TYPE_ID, &all).await)?;
+                    flat(ctx.write_single_register(cfg.input_words_at + super::input::DATA_SEQ, seq).await)
+                }
+                .await;
+                if let Err(e) = sent {
+                    link.on_send_failed();
+                    break format!("writing part {seq}: {e}");
+                }
+                tracing::info!(camera = %camera, seq, "part handed to the robot: type {} face {} angle {} x {} y {}", w[0], w[1], w[2] as i16, w[3] as i16, w[4] as i16);
+            }
+            if link.view().bits & crate::modbus::map::robot_status::ACK_TIMEOUT != 0 && was_waiting == 0 {
+                tracing::warn!(camera = %camera, "robot did not acknowledge DATA_SEQ {} within {} s; keeping the part", link.view().data_seq, cfg.ack_timeout.as_secs_f64());
+            }
+            if last_beat.elapsed() >= Duration::from_secs(1) {
+                heartbeat = heartbeat.wrapping_add(1);
+                last_beat = Instant::now();
+                if let Err(e) = flat(ctx.write_single_register(cfg.input_words_at + super::input::HEARTBEAT, heartbeat).await) {
+                    break format!("writing heartbeat: {e}");
+                }
+            }
+            publish(&link);
+            tokio::select! {
+                _ = shutdown.cancelled() => {
+                    let _ = ctx.disconnect().await;
+                    link.on_disconnected();
+                    publish(&link);
+                    break 'outer;
+                }
+                _ = tokio::time::sleep(cfg.poll) => {}
+            }
+        };
+        link.on_disconnected();
+        publish(&link);
+        let _ = ctx.disconnect().await;
+        tracing::warn!(camera = %camera, "robot connection lost: {why}; reconnecting (parts waiting: {})", link.pending());
+    }
+    tracing::info!(camera = %camera, "robot link stopped ({} parts not delivered)", link.pending());
+}

@@ -1,0 +1,201 @@
+//! Handing accepted parts to a FANUC robot controller over Modbus/TCP.
+//!
+//! The controller is the Modbus server: the appliance writes its input words (group inputs on
+//! the robot side) and reads its output words. [`Link`] is the protocol as a plain state machine
+//! (connection events, polled outputs and the time in; writes out), tested without sockets;
+//! [`link`] drives it with a tokio-modbus client.
+
+pub mod link;
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+use crate::handshake::{PartResult, RobotView, angle_word, robot_bits};
+
+/// Robot input words (offsets from `input_words_at`), written by the appliance.
+pub mod input {
+    pub const DATA_SEQ: u16 = 0;
+    pub const TYPE_ID: u16 = 1;
+    pub const FACE: u16 = 2;
+    pub const ANGLE: u16 = 3;
+    pub const X: u16 = 4;
+    pub const Y: u16 = 5;
+    pub const CONFIDENCE: u16 = 6;
+    pub const HEARTBEAT: u16 = 7;
+    pub const COUNT: u16 = 8;
+}
+
+/// Robot output words (offsets from `output_words_at`), read by the appliance.
+pub mod output {
+    pub const STATUS: u16 = 0;
+    pub const ACK_SEQ: u16 = 1;
+    pub const COUNT: u16 = 2;
+    /// STATUS bit 0: ready for a part.
+    pub const READY: u16 = 1 << 0;
+    /// STATUS bit 1: fault.
+    pub const FAULT: u16 = 1 << 1;
+}
+
+/// Words 1..=6 for a part (TYPE_ID .. CONFIDENCE; the driver appends HEARTBEAT). A rejected
+/// part (sent only with `send = "all"`) carries TYPE_ID 0 and CONFIDENCE 0: never a pick
+/// instruction.
+pub fn part_words(p: &PartResult) -> [u16; 6] {
+    let i16w = |v: f64| (v.round().clamp(-32768.0, 32767.0) as i16) as u16;
+    let (type_id, conf) = if p.accepted { (p.type_id, (p.confidence * 1000.0).round().clamp(0.0, 1000.0) as u16) } else { (0, 0) };
+    [type_id, p.face, angle_word(p.angle_deg), i16w(p.x_mm * 10.0), i16w(p.y_mm * 10.0), conf]
+}
+
+/// What the driver must do next.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Action {
+    /// Write words 1..=7 (these six and the heartbeat, one FC16), then DATA_SEQ alone (a second
+    /// request), so the robot never acts on half-written data.
+    Send { seq: u16, words: [u16; 6] },
+}
+
+fn next_seq(s: u16) -> u16 {
+    if s == u16::MAX { 1 } else { s + 1 }
+}
+
+/// The robot link's protocol state.
+#[derive(Debug, Clone)]
+pub struct Link {
+    queue: VecDeque<PartResult>,
+    depth: usize,
+    ack_timeout: Duration,
+    connected: bool,
+    /// Outputs read since the last (re)connection: nothing is written before.
+    synced: bool,
+    /// Sequence of the last part written (0: none since start).
+    last_seq: u16,
+    /// The part written and not yet acknowledged, when it was written, and whether it must be
+    /// written again (the connection dropped before we knew it arrived).
+    in_flight: Option<(u16, PartResult, Duration, bool)>,
+    last_ack: Option<u16>,
+    robot_ready: bool,
+    robot_fault: bool,
+    timed_out: bool,
+    view: RobotView,
+    first_connection: bool,
+}
+
+impl Link {
+    pub fn new(depth: usize, ack_timeout: Duration) -> Self {
+        Self {
+            queue: VecDeque::new(),
+            depth,
+            ack_timeout,
+            connected: false,
+            synced: false,
+            last_seq: 0,
+            in_flight: None,
+            last_ack: None,
+            robot_ready: false,
+            robot_fault: false,
+            timed_out: false,
+            view: RobotView::default(),
+            first_connection: true,
+        }
+    }
+
+    /// Queues a part for the robot; false (and counted) when the queue is full.
+    pub fn enqueue(&mut self, p: PartResult) -> bool {
+        if self.queue.len() + self.in_flight.is_some() as usize >= self.depth {
+            self.view.dropped = self.view.dropped.wrapping_add(1);
+            return false;
+        }
+        self.queue.push_back(p);
+        true
+    }
+
+    pub fn on_connected(&mut self) {
+        if !self.first_connection {
+            self.view.reconnects = self.view.reconnects.wrapping_add(1);
+        }
+        self.first_connection = false;
+        self.connected = true;
+        self.synced = false;
+    }
+
+    /// The connection dropped: whatever was in flight must be confirmed (or re-sent) once the
+    /// outputs have been read again.
+    pub fn on_disconnected(&mut self) {
+        self.connected = false;
+        self.synced = false;
+        if let Some(f) = self.in_flight.as_mut() {
+            f.3 = true;
+        }
+    }
+
+    /// A write of a part failed midway: send it again once connected.
+    pub fn on_send_failed(&mut self) {
+        if let Some(f) = self.in_flight.as_mut() {
+            f.3 = true;
+        }
+    }
+
+    /// The robot's outputs were read at `now`; returns what to write, if anything.
+    pub fn on_outputs(&mut self, status: u16, ack: u16, now: Duration) -> Option<Action> {
+        self.robot_ready = status & output::READY != 0;
+        self.robot_fault = status & output::FAULT != 0;
+        let first_read = !self.synced;
+        self.synced = true;
+        if self.last_seq == 0 && self.in_flight.is_none() {
+            // Continue the robot's numbering: a DATA_SEQ equal to its last ACK_SEQ would look
+            // already handled.
+            self.last_seq = ack;
+        }
+        if let Some((seq, _, _, _)) = &self.in_flight {
+            if ack == *seq {
+                self.in_flight = None;
+                self.timed_out = false;
+                self.view.delivered = self.view.delivered.wrapping_add(1);
+            } else if self.last_ack != Some(ack) && !first_read {
+                // ACK_SEQ moved to a value that is not the part in flight: stale or wrong.
+                self.view.wrong_acks = self.view.wrong_acks.wrapping_add(1);
+            }
+        } else if self.last_ack.is_some() && self.last_ack != Some(ack) && ack != self.last_seq {
+            self.view.wrong_acks = self.view.wrong_acks.wrapping_add(1);
+        }
+        self.last_ack = Some(ack);
+        self.view.ack_seq = ack;
+        if let Some((seq, p, sent, resend)) = self.in_flight.clone() {
+            if now.saturating_sub(sent) > self.ack_timeout && !self.timed_out {
+                self.timed_out = true;
+                self.view.ack_timeouts = self.view.ack_timeouts.wrapping_add(1);
+            }
+            if resend {
+                if let Some(f) = self.in_flight.as_mut() {
+                    f.3 = false;
+                }
+                return Some(Action::Send { seq, words: part_words(&p) });
+            }
+            return None;
+        }
+        if !self.robot_ready || self.robot_fault {
+            return None;
+        }
+        let p = self.queue.pop_front()?;
+        let seq = next_seq(self.last_seq);
+        self.last_seq = seq;
+        self.view.data_seq = seq;
+        let words = part_words(&p);
+        self.in_flight = Some((seq, p, now, false));
+        Some(Action::Send { seq, words })
+    }
+
+    pub fn connected(&self) -> bool {
+        self.connected
+    }
+    pub fn pending(&self) -> usize {
+        self.queue.len() + self.in_flight.is_some() as usize
+    }
+
+    /// The state for registers 110..118.
+    pub fn view(&self) -> RobotView {
+        let mut v = self.view;
+        v.bits = robot_bits(true, self.connected, self.in_flight.is_some(), self.timed_out, self.robot_ready, self.robot_fault);
+        v.queue = self.pending().min(65535) as u16;
+        v
+    }
+}

@@ -1,0 +1,282 @@
+//! The PLC handshake, first as a state machine (no sockets, virtual time), then end to end over
+//! Modbus/TCP against the real server.
+
+mod common;
+
+use std::time::Duration;
+
+use lfi_bridge::handshake::{Command, Handshake, Outcome, PartResult, Settings, WordOrder};
+use lfi_bridge::modbus::map::{addr, error_code, status};
+use lfi_bridge::vision::Reason;
+
+fn hs(depth: usize) -> Handshake {
+    Handshake::new(Settings { queue_depth: depth, online: true, word_order: WordOrder::HighFirst, types_enrolled: 3 })
+}
+
+fn part(type_id: u16, x: f64) -> PartResult {
+    PartResult { accepted: true, reason: Reason::Ok, type_id, face: 1, angle_deg: 12.34, x_mm: x, y_mm: -5.0, confidence: 0.876 }
+}
+
+fn ms(v: u64) -> Duration {
+    Duration::from_millis(v)
+}
+
+fn trigger(h: &mut Handshake, t: u64) -> Option<u16> {
+    let c = h.write(addr::TRIGGER, 1, ms(t));
+    h.write(addr::TRIGGER, 0, ms(t));
+    c.map(|Command::Acquire { acq_id }| acq_id)
+}
+
+#[test]
+fn a_trigger_is_acknowledged_and_its_result_shown_until_acknowledged() {
+    let mut h = hs(8);
+    assert_eq!(
+        h.word(addr::STATUS) & (status::READY | status::ONLINE | status::CAMERA_OK),
+        status::READY | status::ONLINE | status::CAMERA_OK
+    );
+    let cmd = h.write(addr::TRIGGER, 1, ms(0));
+    assert_eq!(cmd, Some(Command::Acquire { acq_id: 1 }));
+    let s = h.word(addr::STATUS);
+    assert!(s & status::TRIGGER_ACK != 0 && s & status::BUSY != 0 && s & status::READY == 0);
+    assert_eq!(h.word(addr::ACQ_COUNT), 1);
+    // Holding TRIGGER at 1 is not a new edge.
+    assert_eq!(h.write(addr::TRIGGER, 1, ms(1)), None);
+    h.complete(1, Outcome::Parts { parts: vec![part(2, 100.0)], processing_ms: 9.87 }, ms(25));
+    let s = h.word(addr::STATUS);
+    assert!(s & status::BUSY == 0 && s & status::RESULT_VALID != 0 && s & status::TRIGGER_ACK != 0);
+    let block = h.read(200, 19);
+    assert_eq!(&block[..6], &[1, 1, 1, 0, 2, 1]);
+    assert_eq!(block[6] as i16, 1234);
+    assert_eq!((block[7] as i16, block[8] as i16, block[9]), (1000, -50, 876));
+    assert_eq!((block[10], block[11]), (1, 1));
+    let angle = f32::from_bits(((block[12] as u32) << 16) | block[13] as u32);
+    assert!((angle - 12.34).abs() < 1e-4);
+    assert_eq!(block[18], 99);
+    assert_eq!(h.word(addr::LAST_CYCLE_TIME), 250);
+    h.write(addr::TRIGGER, 0, ms(30));
+    assert_eq!(h.word(addr::STATUS) & status::TRIGGER_ACK, 0);
+    h.write(addr::RESULT_ACK, 1, ms(31));
+    assert_eq!(h.word(addr::STATUS) & status::RESULT_VALID, 0);
+    assert!(h.read(200, 20).iter().all(|&w| w == 0), "an empty queue reads as zeros");
+}
+
+#[test]
+fn several_parts_are_queued_in_order_and_a_wrong_ack_is_ignored_and_counted() {
+    let mut h = hs(8);
+    let id = trigger(&mut h, 0).unwrap();
+    h.complete(id, Outcome::Parts { parts: vec![part(1, 10.0), part(2, 20.0), part(3, 30.0)], processing_ms: 5.0 }, ms(10));
+    assert_eq!(h.word(addr::RESULTS_PENDING), 3);
+    assert_eq!(h.word(addr::RESULT_ACK_IGNORED), 0);
+    h.write(addr::RESULT_ACK, 2, ms(11));
+    assert_eq!(h.word(addr::RESULT_ACK_IGNORED), 1);
+    assert_eq!(h.word(addr::RESULT_SEQ), 1, "a wrong ACK does not pop");
+    for (seq, (type_id, index)) in [(1, (1, 1)), (2, (2, 2)), (3, (3, 3))] {
+        assert_eq!(h.read(200, 1)[0], seq);
+        assert_eq!((h.word(addr::TYPE_ID), h.word(addr::PART_INDEX), h.word(addr::PART_COUNT)), (type_id, index, 3));
+        h.write(addr::RESULT_ACK, seq, ms(12));
+    }
+    assert_eq!(h.word(addr::RESULTS_PENDING), 0);
+}
+
+#[test]
+fn a_frame_without_parts_queues_one_no_part_result() {
+    let mut h = hs(8);
+    let id = trigger(&mut h, 0).unwrap();
+    h.complete(id, Outcome::Parts { parts: vec![], processing_ms: 3.0 }, ms(5));
+    assert_eq!(h.word(addr::DECISION), 2);
+    assert_eq!(h.word(addr::REASON), Reason::NoPart.code());
+    assert_eq!((h.word(addr::PART_INDEX), h.word(addr::PART_COUNT)), (0, 0));
+}
+
+#[test]
+fn a_trigger_while_busy_offline_or_in_error_is_missed() {
+    let mut h = hs(8);
+    let id = trigger(&mut h, 0).unwrap();
+    assert_eq!(trigger(&mut h, 1), None);
+    assert_eq!(h.word(addr::MISSED_TRIGGERS), 1);
+    assert_eq!(h.word(addr::ACQ_COUNT), 1);
+    h.complete(id, Outcome::Parts { parts: vec![], processing_ms: 1.0 }, ms(5));
+    h.write(addr::ONLINE, 0, ms(6));
+    assert_eq!(h.word(addr::STATUS) & (status::READY | status::ONLINE), 0);
+    assert_eq!(trigger(&mut h, 7), None);
+    assert_eq!(h.word(addr::MISSED_TRIGGERS), 2);
+    h.write(addr::ONLINE, 1, ms(8));
+    let id = trigger(&mut h, 9).unwrap();
+    h.complete(id, Outcome::Failed { code: error_code::CAMERA }, ms(10));
+    assert_eq!(trigger(&mut h, 11), None, "in ERROR");
+    assert_eq!(h.word(addr::MISSED_TRIGGERS), 3);
+}
+
+#[test]
+fn a_camera_fault_sets_error_queues_a_frame_error_and_clear_error_clears_it() {
+    let mut h = hs(8);
+    let id = trigger(&mut h, 0).unwrap();
+    h.complete(id, Outcome::Failed { code: error_code::FRAME }, ms(3));
+    assert!(h.word(addr::STATUS) & status::ERROR != 0);
+    assert_eq!(h.word(addr::ERROR_CODE), error_code::FRAME);
+    assert_eq!((h.word(addr::DECISION), h.word(addr::REASON)), (2, Reason::FrameError.code()));
+    h.write(addr::CLEAR_ERROR, 1, ms(4));
+    assert_eq!(h.word(addr::STATUS) & status::ERROR, 0);
+    assert_eq!(h.word(addr::ERROR_CODE), 0);
+    assert_eq!(h.word(addr::CLEAR_ERROR), 0);
+    assert_eq!(h.word(addr::RESULTS_PENDING), 1, "CLEAR_ERROR does not drop results");
+}
+
+#[test]
+fn a_full_queue_drops_the_newest_and_says_so_until_clear_error() {
+    let mut h = hs(2);
+    let id = trigger(&mut h, 0).unwrap();
+    h.complete(id, Outcome::Parts { parts: vec![part(1, 1.0), part(1, 2.0), part(1, 3.0)], processing_ms: 1.0 }, ms(1));
+    assert_eq!(h.word(addr::RESULTS_PENDING), 2);
+    assert_eq!(h.word(addr::OVERRUN_COUNT), 1);
+    assert!(h.word(addr::STATUS) & status::RESULT_OVERRUN != 0);
+    assert!(h.word(addr::STATUS) & status::READY != 0, "a full queue does not clear READY");
+    // The kept results are the oldest, and the dropped one consumed no sequence number.
+    h.write(addr::RESULT_ACK, 1, ms(2));
+    h.write(addr::RESULT_ACK, 2, ms(2));
+    let id = trigger(&mut h, 3).unwrap();
+    h.complete(id, Outcome::Parts { parts: vec![part(1, 4.0)], processing_ms: 1.0 }, ms(4));
+    assert_eq!(h.word(addr::RESULT_SEQ), 3);
+    assert!(h.word(addr::STATUS) & status::RESULT_OVERRUN != 0, "stays set");
+    h.write(addr::CLEAR_ERROR, 1, ms(5));
+    assert_eq!(h.word(addr::STATUS) & status::RESULT_OVERRUN, 0);
+}
+
+#[test]
+fn result_sequence_wraps_from_65535_to_1() {
+    let mut h = hs(1);
+    for _ in 0..65535u32 {
+        let id = trigger(&mut h, 0).unwrap();
+        h.complete(id, Outcome::Parts { parts: vec![], processing_ms: 0.0 }, ms(0));
+        let seq = h.word(addr::RESULT_SEQ);
+        h.write(addr::RESULT_ACK, seq, ms(0));
+    }
+    let id = trigger(&mut h, 0).unwrap();
+    h.complete(id, Outcome::Parts { parts: vec![], processing_ms: 0.0 }, ms(0));
+    assert_eq!(h.word(addr::RESULT_SEQ), 1);
+}
+
+#[test]
+fn expected_type_turns_other_types_into_wrong_type_rejects() {
+    let mut h = hs(8);
+    h.write(addr::EXPECTED_TYPE, 2, ms(0));
+    let id = trigger(&mut h, 0).unwrap();
+    h.complete(id, Outcome::Parts { parts: vec![part(2, 1.0), part(3, 2.0)], processing_ms: 1.0 }, ms(1));
+    assert_eq!((h.word(addr::DECISION), h.word(addr::REASON)), (1, 0));
+    h.write(addr::RESULT_ACK, 1, ms(2));
+    assert_eq!((h.word(addr::DECISION), h.word(addr::REASON), h.word(addr::TYPE_ID)), (2, Reason::WrongType.code(), 3));
+}
+
+#[test]
+fn heartbeat_floats_and_stale_reports() {
+    let mut h = Handshake::new(Settings { queue_depth: 4, online: true, word_order: WordOrder::LowFirst, types_enrolled: 3 });
+    h.tick(Duration::from_millis(65_537_500));
+    assert_eq!(h.word(addr::HEARTBEAT), 1, "65537 s wraps to 1");
+    assert_eq!(h.word(addr::MAP_VERSION), 1);
+    assert_eq!(h.word(addr::TYPES_ENROLLED), 3);
+    let id = trigger(&mut h, 0).unwrap();
+    h.complete(id + 7, Outcome::Parts { parts: vec![part(1, 1.0)], processing_ms: 1.0 }, ms(1));
+    assert!(h.busy(), "a report for another acquisition is ignored");
+    h.complete(id, Outcome::Parts { parts: vec![part(1, 123.25)], processing_ms: 1.0 }, ms(1));
+    let w = h.read(addr::X_F32, 2);
+    assert_eq!(f32::from_bits(((w[1] as u32) << 16) | w[0] as u32), 123.25, "low word first");
+}
+
+mod over_tcp {
+    use super::common::appliance::*;
+    use lfi_bridge::modbus::map::{addr, status};
+    use std::time::Duration;
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_thousand_cycles_lose_duplicate_and_reorder_nothing() {
+        let running = start(&config("", "")).await;
+        let mut ctx = plc(running.modbus_addr, 1).await;
+        let mut last_seq = 0u16;
+        let mut results = 0u32;
+        let mut multi = 0u32;
+        for cycle in 1..=1000u16 {
+            wait_status(&mut ctx, |s| s & status::READY != 0, Duration::from_secs(10)).await;
+            write(&mut ctx, addr::TRIGGER, 1).await;
+            wait_status(&mut ctx, |s| s & status::TRIGGER_ACK != 0 && s & status::BUSY == 0, Duration::from_secs(10)).await;
+            write(&mut ctx, addr::TRIGGER, 0).await;
+            // Consume every result of this frame.
+            loop {
+                let block = read(&mut ctx, 100, 120).await;
+                if block[0] & status::RESULT_VALID == 0 {
+                    break;
+                }
+                let (seq, acq, count) = (block[100], block[101], block[111]);
+                assert_eq!(seq, last_seq.wrapping_add(1), "cycle {cycle}: sequence");
+                assert_eq!(acq, cycle, "cycle {cycle}: result of another acquisition");
+                if count > 1 {
+                    multi += 1;
+                }
+                last_seq = seq;
+                results += 1;
+                write(&mut ctx, addr::RESULT_ACK, seq).await;
+            }
+        }
+        let s = read(&mut ctx, 100, 7).await;
+        assert_eq!((s[3], s[5], s[6]), (1000, 0, 0), "ACQ_COUNT, OVERRUN_COUNT, MISSED_TRIGGERS");
+        assert!(results >= 1000 && multi > 0, "{results} results, {multi} from multi-part frames");
+        running.stop().await;
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn two_masters_at_once_never_clobber_each_other() {
+        let running = start(&config("", "")).await;
+        let addr0 = running.modbus_addr;
+        let observer = tokio::spawn(async move {
+            let mut ctx = plc(addr0, 1).await;
+            let mut checks = 0;
+            for i in 0..400u16 {
+                write(&mut ctx, addr::EXPECTED_TYPE, 0).await;
+                let b = read(&mut ctx, 100, 121).await;
+                // One snapshot: RESULT_VALID agrees with RESULTS_PENDING and the result block.
+                assert_eq!(b[0] & status::RESULT_VALID != 0, b[4] > 0, "snapshot {i}");
+                assert_eq!(b[4] > 0, b[100] != 0, "snapshot {i}");
+                checks += 1;
+            }
+            checks
+        });
+        let mut ctx = plc(addr0, 1).await;
+        for _ in 0..100 {
+            wait_status(&mut ctx, |s| s & status::READY != 0, Duration::from_secs(10)).await;
+            write(&mut ctx, addr::TRIGGER, 1).await;
+            wait_status(&mut ctx, |s| s & status::TRIGGER_ACK != 0 && s & status::BUSY == 0, Duration::from_secs(10)).await;
+            write(&mut ctx, addr::TRIGGER, 0).await;
+            loop {
+                let b = read(&mut ctx, 100, 101).await;
+                if b[0] & status::RESULT_VALID == 0 {
+                    break;
+                }
+                write(&mut ctx, addr::RESULT_ACK, b[100]).await;
+            }
+        }
+        assert_eq!(observer.await.unwrap(), 400);
+        let s = read(&mut ctx, 103, 4).await;
+        assert_eq!((s[0], s[3]), (100, 0), "every trigger acquired, none missed");
+        running.stop().await;
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn overrun_over_tcp_and_clear_error() {
+        let mut cfg = config("", "");
+        cfg.queue_depth = 2;
+        let running = start(&cfg).await;
+        let mut ctx = plc(running.modbus_addr, 1).await;
+        for _ in 0..4 {
+            wait_status(&mut ctx, |s| s & status::READY != 0, Duration::from_secs(10)).await;
+            write(&mut ctx, addr::TRIGGER, 1).await;
+            wait_status(&mut ctx, |s| s & status::BUSY == 0 && s & status::TRIGGER_ACK != 0, Duration::from_secs(10)).await;
+            write(&mut ctx, addr::TRIGGER, 0).await;
+        }
+        let s = read(&mut ctx, 100, 6).await;
+        assert!(s[0] & status::RESULT_OVERRUN != 0);
+        assert_eq!(s[4], 2);
+        assert!(s[5] >= 2, "OVERRUN_COUNT {}", s[5]);
+        write(&mut ctx, addr::CLEAR_ERROR, 1).await;
+        assert_eq!(read(&mut ctx, 100, 1).await[0] & status::RESULT_OVERRUN, 0);
+        running.stop().await;
+    }
+}
