@@ -66,6 +66,17 @@ impl Worker {
                     Err(RecvTimeoutError::Disconnected) => break,
                 },
                 Trigger::FreeRun => {
+                    // Take a frame only when it can be used: a folder's files wait in the inbox
+                    // while the camera is offline or in ERROR instead of being consumed unseen.
+                    let can = {
+                        let hs = self.handshake.lock().unwrap_or_else(|p| p.into_inner());
+                        hs.ready() && hs.word(crate::modbus::map::addr::STATUS) & crate::modbus::map::status::ERROR == 0
+                    };
+                    if !can {
+                        self.update_camera_ok();
+                        std::thread::sleep(Duration::from_millis(50));
+                        continue;
+                    }
                     let frame = self.source.next(Duration::from_millis(200));
                     if matches!(frame, Err(SourceError::Timeout(_))) {
                         self.update_camera_ok();

@@ -10,8 +10,10 @@ use tokio_modbus::{ExceptionCode, Request, Response};
 
 /// MBAP header length (transaction, protocol, length, unit).
 pub const HEADER: usize = 7;
-/// Largest PDU of the specification (253 bytes) plus the unit id counted in the length field.
-pub const MAX_LENGTH: usize = 254;
+/// Largest length field accepted. The specification's largest PDU (253 bytes) plus the unit id
+/// makes 254; somewhat longer frames are still framed so that, say, an FC16 of 124 registers
+/// gets its exception 0x03 instead of a closed connection.
+pub const MAX_LENGTH: usize = 512;
 
 /// One framed request.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -26,7 +28,7 @@ pub struct Adu {
 pub enum FrameError {
     #[error("protocol id {0} is not Modbus (0)")]
     Protocol(u16),
-    #[error("length field {0} is outside 2..=254")]
+    #[error("length field {0} is outside 2..=512")]
     Length(u16),
 }
 

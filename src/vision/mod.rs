@@ -308,6 +308,11 @@ impl Estimator {
         let smallest = templates.iter().map(|t| t.area).fold(f64::INFINITY, f64::min);
         let largest = templates.iter().map(|t| t.area).fold(0.0, f64::max);
         let min_area = params.min_area.unwrap_or(0.25 * smallest);
+        // Decimate only as far as the smallest part keeps about 45 pixels of radius: line
+        // features and the closing need that much, whatever the camera's resolution.
+        let min_radius = templates.iter().map(|t| t.rms_radius()).fold(f64::INFINITY, f64::min);
+        let mut params = params;
+        params.coarse_factor = params.coarse_factor.min(((min_radius / 45.0) as usize).max(1));
         Ok(Self { lib: Library::new(templates, params.signal_bins), params, min_area, max_template_area: largest })
     }
 

@@ -1,0 +1,99 @@
+//! The `dir` source: each file a camera drops into the folder becomes exactly one frame.
+
+mod common;
+
+use std::path::Path;
+use std::time::Duration;
+
+use common::appliance::*;
+use lfi_bridge::config::Config;
+use lfi_bridge::modbus::map::{addr, status};
+use lfi_bridge::sim::{SimConfig, Simulator};
+
+fn dir_config(inbox: &Path, trigger: &str) -> Config {
+    let text = format!(
+        "[modbus]\nbind = \"127.0.0.1:0\"\n[result]\nqueue_depth = 100\n[log]\nlevel = \"warn\"\n[[camera]]\nunit_id = 1\ntrigger = \"{trigger}\"\nkb = \"kb.toml\"\n[camera.source]\nkind = \"dir\"\npath = \"{}\"\nsettle_ms = 50\ntimeout_ms = 500\n",
+        inbox.display()
+    );
+    Config::from_toml(&text, &inbox.parent().unwrap().join("appliance.toml")).unwrap()
+}
+
+/// A knowledge base of the small simulator beside the inbox, and its scenes as PNG bytes.
+fn setup(root: &Path) -> Vec<Vec<u8>> {
+    let sim = Simulator::new(SimConfig { width: 640, height: 480, seed: 4, noise: None }).unwrap();
+    let mut kb = lfi_bridge::kb::KnowledgeBase::default();
+    for t in common::enrolled(&sim) {
+        kb.enroll(t, "sim".into()).unwrap();
+    }
+    kb.save(&root.join("kb.toml")).unwrap();
+    (0..6).map(|i| lfi_bridge::imageio::encode_png(&sim.scene(i).unwrap().image).unwrap()).collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn free_running_folder_processes_each_dropped_file_exactly_once() {
+    let root = tempfile::tempdir().unwrap();
+    let inbox = root.path().join("inbox");
+    std::fs::create_dir(&inbox).unwrap();
+    let frames = setup(root.path());
+    let running = start(&dir_config(&inbox, "free-run")).await;
+    let mut ctx = plc(running.modbus_addr, 1).await;
+    // Files arrive one by one; one is written slowly, in pieces, like a camera streaming it out;
+    // one is corrupt.
+    for (i, png) in frames.iter().enumerate() {
+        let path = inbox.join(format!("frame{i:02}.png"));
+        if i == 2 {
+            let mut f = std::fs::File::create(&path).unwrap();
+            for chunk in png.chunks(png.len() / 4 + 1) {
+                std::io::Write::write_all(&mut f, chunk).unwrap();
+                std::io::Write::flush(&mut f).unwrap();
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        } else {
+            std::fs::write(&path, png).unwrap();
+        }
+        tokio::time::sleep(Duration::from_millis(30)).await;
+    }
+    std::fs::write(inbox.join("broken.png"), b"\x89PNG\r\n\x1a\n broken").unwrap();
+    // The broken file sets ERROR; while it is set, new files wait in the inbox.
+    let s = wait_status(&mut ctx, |s| s & status::ERROR != 0, Duration::from_secs(20)).await;
+    assert_eq!(s & status::ERROR, status::ERROR);
+    std::fs::write(inbox.join("late.png"), &frames[0]).unwrap();
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    assert!(inbox.join("late.png").exists(), "a file arriving during ERROR is kept for later");
+    assert_eq!(read(&mut ctx, 102, 1).await[0], 2, "ERROR_CODE 2: frame");
+    write(&mut ctx, addr::CLEAR_ERROR, 1).await;
+    // Wait until all eight files are gone from the inbox.
+    let until = tokio::time::Instant::now() + Duration::from_secs(20);
+    loop {
+        let left: Vec<_> = std::fs::read_dir(&inbox).unwrap().flatten().filter(|e| e.path().is_file()).collect();
+        if left.is_empty() {
+            break;
+        }
+        assert!(tokio::time::Instant::now() < until, "files left in the inbox: {left:?}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let s = read(&mut ctx, 100, 5).await;
+    assert_eq!(s[3], 8, "ACQ_COUNT: one acquisition per file");
+    let done = std::fs::read_dir(inbox.join("done")).unwrap().count();
+    let failed = std::fs::read_dir(inbox.join("failed")).unwrap().count();
+    assert_eq!((done, failed), (7, 1));
+    running.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_trigger_with_no_file_is_a_camera_error() {
+    let root = tempfile::tempdir().unwrap();
+    let inbox = root.path().join("inbox");
+    std::fs::create_dir(&inbox).unwrap();
+    setup(root.path());
+    let running = start(&dir_config(&inbox, "modbus")).await;
+    let mut ctx = plc(running.modbus_addr, 1).await;
+    write(&mut ctx, addr::TRIGGER, 1).await;
+    let s = wait_status(&mut ctx, |s| s & status::RESULT_VALID != 0, Duration::from_secs(5)).await;
+    assert!(s & status::ERROR != 0);
+    let b = read(&mut ctx, 102, 1).await;
+    assert_eq!(b[0], 1, "ERROR_CODE 1: camera");
+    assert_eq!(read(&mut ctx, addr::REASON, 1).await[0], 7, "frame error result");
+    running.stop().await;
+}
