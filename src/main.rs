@@ -126,7 +126,7 @@ fn main() -> ExitCode {
     let result = match cli.cmd {
         Cmd::Run { config } => run(&config),
         Cmd::RegisterMap => {
-            print!("{}", lfi_bridge::modbus::map::markdown());
+            print!("{}{}", lfi_bridge::modbus::map::markdown(), lfi_bridge::robot::markdown());
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Enroll { kb, type_name, id, face, origin, image } => enroll(&kb, &type_name, id, face, origin, &image),

@@ -36,6 +36,30 @@ pub mod output {
     pub const FAULT: u16 = 1 << 1;
 }
 
+/// The robot words as Markdown (appended to `register-map.md`).
+pub fn markdown() -> String {
+    let mut s = String::new();
+    s.push_str("\n# Robot link (FANUC controller as Modbus/TCP server)\n\n");
+    s.push_str("Per camera, `[camera.robot]` makes the appliance a Modbus/TCP client of the robot controller. It writes the controller's *input words* (group inputs on the robot, rack 96) at `input_words_at` and reads its *output words* at `output_words_at` (FC3, or FC4 with `output_function = 4`). Offsets below are from those bases. Signed values are two's complement; the controller's group inputs are unsigned, so a TP program recovers them with `R = GI - (GI DIV 32768) * 65536` (see `docs/fanuc/LFI_PICK.LS`).\n\n");
+    s.push_str("| Offset | Input word (written by the appliance) | Type | Unit |\n|---:|---|---|---|\n");
+    for (o, name, ty, unit) in [
+        (input::DATA_SEQ, "DATA_SEQ: 1..65535, wraps to 1; written last, alone", "uint16", "seq"),
+        (input::TYPE_ID, "TYPE_ID (0 for a rejected part, sent only with `send = \"all\"`: never pick it)", "uint16", "type id"),
+        (input::FACE, "FACE: 1 up, 2 down", "uint16", "code"),
+        (input::ANGLE, "ANGLE, robot frame", "int16", "0.01 deg"),
+        (input::X, "X, robot frame", "int16", "0.1 mm"),
+        (input::Y, "Y, robot frame", "int16", "0.1 mm"),
+        (input::CONFIDENCE, "CONFIDENCE (0 for a rejected part)", "uint16", "0.001"),
+        (input::HEARTBEAT, "HEARTBEAT: +1 per second while connected", "uint16", "count"),
+    ] {
+        s.push_str(&format!("| {o} | {name} | {ty} | {unit} |\n"));
+    }
+    s.push_str("\n| Offset | Output word (read by the appliance) | Meaning |\n|---:|---|---|\n");
+    s.push_str("| 0 | STATUS | b0 ready for a part, b1 fault |\n| 1 | ACK_SEQ | the DATA_SEQ the robot program has taken |\n");
+    s.push_str("\nHandover: words 1..7 are written in one FC16 request, then DATA_SEQ alone in a second request, so the robot never acts on half-written data. The next part is written only after ACK_SEQ equals the last DATA_SEQ and STATUS b0 is set. After any (re)connection the appliance reads ACK_SEQ before writing anything: a part acknowledged meanwhile counts as delivered, one that was not is written again with the same DATA_SEQ, so nothing is lost or handed over twice. On a fresh start DATA_SEQ continues from the robot's ACK_SEQ. The robot link's queue is separate from the PLC's (RESULT_ACK does not consume robot parts, nor the robot PLC results); its state is in registers 110..118 above.\n");
+    s
+}
+
 /// Words 1..=6 for a part (TYPE_ID .. CONFIDENCE; the driver appends HEARTBEAT). A rejected
 /// part (sent only with `send = "all"`) carries TYPE_ID 0 and CONFIDENCE 0: never a pick
 /// instruction.

@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 pub mod appliance;
+pub mod fanuc;
 
 use lfi_bridge::eval::Observation;
 use lfi_bridge::sim::{SimConfig, Simulator};
