@@ -610,6 +610,20 @@ mod tests {
     }
 
     #[test]
+    fn the_shipped_configurations_are_valid() {
+        for name in ["demo.toml", "production.toml"] {
+            let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config").join(name);
+            let c = Config::load(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert!(!c.cameras.is_empty());
+        }
+        let demo = Config::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("config/demo.toml")).unwrap();
+        assert_eq!(demo.modbus.bind.to_string(), "127.0.0.1:1502");
+        assert_eq!(demo.cameras[0].kb, KbSource::Simulator);
+        assert_eq!(demo.cameras[0].trigger, Trigger::Modbus);
+        assert_eq!(demo.queue_depth, 8);
+    }
+
+    #[test]
     fn errors_name_file_key_and_value() {
         let e = err(&format!("{MIN}bogus = 1\n"));
         assert!(e.contains("/etc/lfi/x.toml") && e.contains("bogus"), "{e}");
