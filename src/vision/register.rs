@@ -207,7 +207,13 @@ pub fn register(part: &[Pt], tmpl: &OutlineIndex, init: Similarity, tolerance: f
             break;
         }
     }
-    // Final statistics with the converged pose.
+    let pose = Similarity { from: Pt::new(ct.x + tx, ct.y + ty), to: cp, angle_rad: b.atan2(a), scale: 1.0 / a.hypot(b) };
+    measure(part, tmpl, pose, tolerance, stride)
+}
+
+/// How well `tmpl` placed by `pose` explains `part`, at a given tolerance (template pixels).
+pub fn measure(part: &[Pt], tmpl: &OutlineIndex, pose: Similarity, tolerance: f64, stride: usize) -> Registration {
+    let stride = stride.max(1);
     let n_t = tmpl.pts.len();
     let mut covered = vec![false; n_t];
     let mut near = vec![false; n_t];
@@ -217,7 +223,7 @@ pub fn register(part: &[Pt], tmpl: &OutlineIndex, init: Similarity, tolerance: f
     let spread = stride as isize;
     for &p in part.iter().step_by(stride) {
         total += 1;
-        let q = map(a, b, tx, ty, p);
+        let q = pose.invert(p);
         match tmpl.nearest(q, gross) {
             Some((i, dist, _)) => {
                 for d in -spread..=spread {
@@ -239,11 +245,9 @@ pub fn register(part: &[Pt], tmpl: &OutlineIndex, init: Similarity, tolerance: f
     let frac = |flags: &[bool]| {
         if total_len > 0.0 { tmpl.lens.iter().zip(flags).filter(|(_, c)| **c).map(|(l, _)| l).sum::<f64>() / total_len } else { 0.0 }
     };
-    let s = 1.0 / a.hypot(b);
-    let angle = b.atan2(a);
     let tot = total.max(1) as f64;
     Registration {
-        pose: Similarity { from: Pt::new(ct.x + tx, ct.y + ty), to: cp, angle_rad: angle, scale: s },
+        pose,
         inliers: inl as f64 / tot,
         coverage: frac(&covered),
         rms: if inl > 0 { (ss / inl as f64).sqrt() } else { f64::INFINITY },
