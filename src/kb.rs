@@ -197,7 +197,7 @@ impl KnowledgeBase {
             if !finite {
                 return Err(bad("non-finite number".into()));
             }
-            if !(r.area_px > 0.0) {
+            if r.area_px.is_nan() || r.area_px <= 0.0 {
                 return Err(bad(format!("area_px = {} must be positive", r.area_px)));
             }
             let template = Template {

@@ -92,6 +92,9 @@ impl Source for SimSource {
 
 const IMAGE_EXTENSIONS: [&str; 9] = ["png", "bmp", "tif", "tiff", "jpg", "jpeg", "pgm", "ppm", "pnm"];
 
+/// Last (size, mtime) seen of a file, and since when it has been unchanged.
+type Seen = (u64, Option<SystemTime>, Instant);
+
 /// A folder the camera's software drops image files into. A file is complete when its size and
 /// modification time have not changed for `settle`; each complete file is one frame, then moved
 /// to `done/` (or `failed/` when it cannot be decoded), so it is never processed twice.
@@ -100,7 +103,7 @@ pub struct DirSource {
     settle: Duration,
     timeout: Duration,
     /// Last (size, mtime) seen per file and since when it has been unchanged.
-    watch: HashMap<PathBuf, (u64, Option<SystemTime>, Instant)>,
+    watch: HashMap<PathBuf, Seen>,
 }
 
 impl DirSource {
@@ -133,7 +136,7 @@ impl DirSource {
             present.push(p);
         }
         self.watch.retain(|p, _| present.contains(p));
-        let mut complete: Vec<(&PathBuf, &(u64, Option<SystemTime>, Instant))> =
+        let mut complete: Vec<(&PathBuf, &Seen)> =
             self.watch.iter().filter(|(_, (size, _, since))| *size > 0 && now.duration_since(*since) >= self.settle).collect();
         complete.sort_by(|a, b| a.1.1.cmp(&b.1.1).then(a.0.cmp(b.0)));
         complete.first().map(|(p, _)| (*p).clone())

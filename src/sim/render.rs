@@ -202,10 +202,10 @@ pub fn render(
     let mut scene = vec![0f32; width * height];
     {
         let c = cloud.data_typed::<f32>()?;
-        for y in 0..height {
+        for (y, row) in rows.iter().enumerate() {
             for x in 0..width {
                 let i = y * width + x;
-                scene[i] = light.belt_gray as f32 + 3.5 * c[i] + 1.3 * rows[y];
+                scene[i] = light.belt_gray as f32 + 3.5 * c[i] + 1.3 * row;
             }
         }
     }

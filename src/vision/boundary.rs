@@ -124,12 +124,12 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
         let belt = (prof[k - ends..].iter().sum::<f64>() / ends as f64).clamp(l_belt - 3.0 * spread, l_belt + 3.0 * spread);
         let level = belt + sign * rise;
         let is_part = |v: f64| if brighter { v >= level } else { v <= level };
-        if let Some(j) = (0..k - 1).rev().find(|&j| is_part(prof[j])) {
-            if j + 1 < k && !is_part(prof[j + 1]) {
-                let (a, b) = (prof[j], prof[j + 1]);
-                let frac = if (b - a).abs() > 1e-9 { ((level - a) / (b - a)).clamp(0.0, 1.0) } else { 0.5 };
-                offsets[i] = ts[j] + frac * STEP;
-            }
+        if let Some(j) = (0..k - 1).rev().find(|&j| is_part(prof[j]))
+            && !is_part(prof[j + 1])
+        {
+            let (a, b) = (prof[j], prof[j + 1]);
+            let frac = if (b - a).abs() > 1e-9 { ((level - a) / (b - a)).clamp(0.0, 1.0) } else { 0.5 };
+            offsets[i] = ts[j] + frac * STEP;
         }
     }
     let contrast = (l_part - l_belt).abs();

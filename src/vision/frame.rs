@@ -53,7 +53,7 @@ impl<'a> GrayView<'a> {
         if width == 0 || height == 0 {
             return Err(FrameError::Empty);
         }
-        let needed = width.checked_mul(height).unwrap_or(usize::MAX);
+        let needed = width.saturating_mul(height);
         if data.len() != needed {
             return Err(FrameError::BufferSize { len: data.len(), width, height, needed });
         }
