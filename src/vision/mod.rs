@@ -527,16 +527,18 @@ impl Estimator {
         // the tolerance for naming a type, but must not blur a small face difference (an
         // eyelet on one side) into a tie.
         let tight = (4.0 * best.reg.rms).clamp(p.fit_tolerance, best.tolerance);
-        let stride_for = |c: &Candidate| if c.entry == best.entry { 1 } else { 4 };
-        let best_tight = register::measure(&outline, &entry.index, pose, tight, 1).fit();
-        let rival = cands
+        let others: Vec<&Candidate> = cands
             .iter()
             .skip(1)
             .filter(|c| {
                 let o = &self.lib.entries[c.entry].template;
                 o.type_name != tpl.type_name || o.face != tpl.face
             })
-            .map(|c| (c, register::measure(&outline, &self.lib.entries[c.entry].index, c.reg.pose, tight, stride_for(c)).fit()))
+            .collect();
+        let best_tight = if others.is_empty() { est.fit } else { register::measure(&outline, &entry.index, pose, tight, 1).fit() };
+        let rival = others
+            .into_iter()
+            .map(|c| (c, register::measure(&outline, &self.lib.entries[c.entry].index, c.reg.pose, tight, 4).fit()))
             .find(|(_, fit)| *fit >= best_tight - p.ambiguity_margin);
         let rival_conf =
             rival.map(|(c, _)| confidence(&self.lib.entries[c.entry].template.segments, &est.segments, &c.reg.pose, diag, lambda));
