@@ -59,7 +59,7 @@ fn main() {
     }
     opencv::core::set_num_threads(1).expect("OpenCV threads");
     let cycles: usize = std::env::var("LFI_PLC_CYCLES").ok().and_then(|v| v.parse().ok()).unwrap_or(300);
-    let text = "[modbus]\nbind = \"127.0.0.1:0\"\n[log]\nlevel = \"warn\"\n[[camera]]\nunit_id = 1\nkb_from_simulator = true\nmm_per_px = 0.153846\n[camera.source]\nkind = \"sim\"\nscenes = 9\n";
+    let text = "[modbus]\nbind = \"127.0.0.1:0\"\n[http]\nenabled = false\n[log]\nlevel = \"warn\"\n[[camera]]\nunit_id = 1\nkb_from_simulator = true\nmm_per_px = 0.153846\n[camera.source]\nkind = \"sim\"\nscenes = 9\n";
     let cfg = Config::from_toml(text, Path::new("bench.toml")).unwrap();
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
     rt.block_on(async move {

@@ -24,7 +24,7 @@ pub mod raw {
         #[serde(default)]
         pub log: Log,
         #[serde(default)]
-        pub http: Option<Http>,
+        pub http: Http,
         #[serde(default)]
         pub camera: Vec<Camera>,
     }
@@ -99,10 +99,20 @@ pub mod raw {
     #[derive(Debug, Deserialize)]
     #[serde(deny_unknown_fields)]
     pub struct Http {
+        #[serde(default = "default_true")]
+        pub enabled: bool,
         #[serde(default = "default_http_bind")]
         pub bind: String,
         #[serde(default)]
         pub token: Option<String>,
+    }
+    fn default_true() -> bool {
+        true
+    }
+    impl Default for Http {
+        fn default() -> Self {
+            Self { enabled: true, bind: default_http_bind(), token: None }
+        }
     }
     fn default_http_bind() -> String {
         "127.0.0.1:8080".into()
@@ -395,8 +405,8 @@ impl Config {
             return Err(c.err("log.level", format!("{:?}", raw.log.level), format!("is not one of {levels:?}")));
         }
         let http = match &raw.http {
-            None => None,
-            Some(h) => {
+            h if !h.enabled => None,
+            h => {
                 let bind = h.bind.parse().map_err(|_| c.err("http.bind", format!("{:?}", h.bind), "is not an address:port"))?;
                 if let Some(t) = &h.token
                     && t.len() < 8

@@ -407,6 +407,11 @@ impl Handshake {
     pub fn settings(&self) -> &Settings {
         &self.settings
     }
+
+    /// After an enrollment changed the knowledge base.
+    pub fn set_types_enrolled(&mut self, n: u16) {
+        self.settings.types_enrolled = n;
+    }
 }
 
 fn no_part(reason: Reason) -> PartResult {

@@ -10,6 +10,7 @@ pub mod calibration;
 pub mod config;
 pub mod eval;
 pub mod handshake;
+pub mod http;
 pub mod imageio;
 pub mod kb;
 pub mod modbus;

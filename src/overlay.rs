@@ -2,6 +2,7 @@
 
 use opencv::core::{self, Mat, Point, Scalar};
 use opencv::imgproc;
+use opencv::prelude::*;
 
 use crate::vision::{Estimator, FrameEstimate, GrayView, Pt};
 
@@ -68,8 +69,10 @@ pub fn draw(frame: GrayView<'_>, est: &FrameEstimate, estimator: &Estimator, sca
         } else {
             format!("REJECT {}{}", p.reason, p.type_name.as_deref().map(|t| format!(" ({t})")).unwrap_or_default())
         };
-        let at = Point::new((p.x * scale) as i32 - 60, (p.y * scale) as i32);
-        let fs = (0.5 * scale * 4.0).clamp(0.4, 1.5);
+        // Above the part's box, kept inside the picture.
+        let (lo, _) = crate::vision::geometry::bounds(&p.outline);
+        let fs = (img.cols() as f64 / 1600.0).clamp(0.35, 1.0);
+        let at = Point::new(((lo.x * scale) as i32).clamp(2, (img.cols() - 200).max(2)), ((lo.y * scale) as i32 - 6).max(14));
         imgproc::put_text(
             &mut img,
             &label,

@@ -12,7 +12,7 @@ use lfi_bridge::sim::{SimConfig, Simulator};
 
 fn dir_config(inbox: &Path, trigger: &str) -> Config {
     let text = format!(
-        "[modbus]\nbind = \"127.0.0.1:0\"\n[result]\nqueue_depth = 100\n[log]\nlevel = \"warn\"\n[[camera]]\nunit_id = 1\ntrigger = \"{trigger}\"\nkb = \"kb.toml\"\n[camera.source]\nkind = \"dir\"\npath = \"{}\"\nsettle_ms = 50\ntimeout_ms = 500\n",
+        "[modbus]\nbind = \"127.0.0.1:0\"\n[http]\nenabled = false\n[result]\nqueue_depth = 100\n[log]\nlevel = \"warn\"\n[[camera]]\nunit_id = 1\ntrigger = \"{trigger}\"\nkb = \"kb.toml\"\n[camera.source]\nkind = \"dir\"\npath = \"{}\"\nsettle_ms = 50\ntimeout_ms = 500\n",
         inbox.display()
     );
     Config::from_toml(&text, &inbox.parent().unwrap().join("appliance.toml")).unwrap()

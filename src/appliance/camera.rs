@@ -14,11 +14,16 @@ use crate::handshake::{Command, Handshake, Outcome, PartResult};
 use crate::modbus::map::error_code;
 use crate::vision::{Estimator, FrameEstimate, GrayImage, PartEstimate};
 
+/// The estimator a camera uses; replaced whole when the operator enrolls a template.
+pub type SharedEstimator = Arc<std::sync::RwLock<Arc<Estimator>>>;
+
 /// What the operator view shows of a camera: the latest frame and estimate, and counters.
 #[derive(Default)]
 pub struct Live {
     pub frame: Option<Arc<GrayImage>>,
     pub estimate: Option<FrameEstimate>,
+    /// Increments with every frame shown (the page reloads the picture when it changes).
+    pub seq: u64,
     pub label: String,
     /// Seconds since the appliance started, when the latest frame was estimated.
     pub at_s: f64,
@@ -38,7 +43,7 @@ pub struct Worker {
     pub trigger: Trigger,
     pub order: PickingOrder,
     pub roi: Option<[usize; 4]>,
-    pub estimator: Arc<Estimator>,
+    pub estimator: SharedEstimator,
     pub calibration: Calibration,
     pub source: Box<dyn Source>,
     pub handshake: Arc<Mutex<Handshake>>,
@@ -173,8 +178,9 @@ impl Worker {
     }
 
     fn estimate(&self, img: &GrayImage) -> Result<FrameEstimate, crate::vision::FrameError> {
+        let estimator = self.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
         match self.roi {
-            None => self.estimator.estimate(img.view()?),
+            None => estimator.estimate(img.view()?),
             Some([x, y, w, h]) => {
                 if x + w > img.width || y + h > img.height {
                     return Err(crate::vision::FrameError::TooSmall { width: img.width, height: img.height });
@@ -183,7 +189,7 @@ impl Worker {
                 for r in 0..h {
                     crop.data[r * w..(r + 1) * w].copy_from_slice(&img.data[(y + r) * img.width + x..(y + r) * img.width + x + w]);
                 }
-                let mut fe = self.estimator.estimate(crop.view()?)?;
+                let mut fe = estimator.estimate(crop.view()?)?;
                 for p in &mut fe.parts {
                     p.x += x as f64;
                     p.y += y as f64;
@@ -237,6 +243,7 @@ impl Worker {
         }
         live.frame = Some(Arc::new(image));
         live.estimate = Some(fe);
+        live.seq += 1;
         live.at_s = self.started.elapsed().as_secs_f64();
     }
 }

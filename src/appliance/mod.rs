@@ -44,15 +44,22 @@ pub struct CameraHandle {
     pub name: String,
     pub handshake: Arc<Mutex<Handshake>>,
     pub live: Arc<Mutex<Live>>,
-    pub estimator: Arc<Estimator>,
+    pub estimator: camera::SharedEstimator,
+    /// Where the knowledge base lives (a file is rewritten on enrollment).
+    pub kb: KbSource,
+    /// The enrolled templates and where each came from.
+    pub templates: Arc<Mutex<Vec<(Template, String)>>>,
+    pub params: Params,
     pub robot: Option<Arc<Mutex<crate::handshake::RobotView>>>,
-    thread: Option<std::thread::JoinHandle<()>>,
+    thread: Mutex<Option<std::thread::JoinHandle<()>>>,
 }
 
 /// The running appliance.
 pub struct Running {
     pub modbus_addr: SocketAddr,
-    pub cameras: Vec<CameraHandle>,
+    /// The operator view's address, when `[http]` is enabled.
+    pub http_addr: Option<SocketAddr>,
+    pub cameras: Arc<Vec<CameraHandle>>,
     pub stations: Arc<Stations>,
     pub stats: Arc<Stats>,
     pub started: Instant,
@@ -61,11 +68,12 @@ pub struct Running {
     tasks: Vec<tokio::task::JoinHandle<()>>,
 }
 
-fn templates_for(cam: &CameraConfig, params: &Params) -> Result<(Vec<Template>, String), StartError> {
+fn templates_for(cam: &CameraConfig, params: &Params) -> Result<(Vec<(Template, String)>, String), StartError> {
     match &cam.kb {
         KbSource::File(p) => {
             let kb = KnowledgeBase::load(p).map_err(|source| StartError::Kb { camera: cam.name.clone(), source })?;
-            Ok((kb.templates(), format!("{} ({} templates, {} types)", p.display(), kb.entries.len(), kb.type_count())))
+            let desc = format!("{} ({} templates, {} types)", p.display(), kb.entries.len(), kb.type_count());
+            Ok((kb.entries.into_iter().map(|e| (e.template, e.source)).collect(), desc))
         }
         KbSource::Simulator => {
             let SourceConfig::Sim { seed, width, height, noise, .. } = cam.source else {
@@ -80,7 +88,7 @@ fn templates_for(cam: &CameraConfig, params: &Params) -> Result<(Vec<Template>, 
                 let view = img.view().map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })?;
                 let t = Template::from_image(view, &name, id, face, None, params)
                     .map_err(|e| StartError::Sim { camera: cam.name.clone(), message: format!("template {name} {face}: {e}") })?;
-                out.push(t);
+                out.push((t, format!("simulator template {name}_{face}")));
             }
             let desc = names.iter().enumerate().map(|(i, n)| format!("{n} = {}", i + 1)).collect::<Vec<_>>().join(", ");
             Ok((out, format!("enrolled from the simulated camera's templates ({desc})")))
@@ -118,10 +126,11 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
     let mut stations = Vec::new();
     let mut robot_links = Vec::new();
     for cam in &cfg.cameras {
-        let (templates, kb_desc) = templates_for(cam, &params)?;
-        let estimator = Arc::new(
+        let (entries, kb_desc) = templates_for(cam, &params)?;
+        let templates: Vec<Template> = entries.iter().map(|(t, _)| t.clone()).collect();
+        let estimator: camera::SharedEstimator = Arc::new(std::sync::RwLock::new(Arc::new(
             Estimator::new(&templates, params.clone()).map_err(|source| StartError::Estimator { camera: cam.name.clone(), source })?,
-        );
+        )));
         let calibration =
             Calibration::from_config(&cam.calibration).map_err(|source| StartError::Calibration { camera: cam.name.clone(), source })?;
         let types = {
@@ -174,8 +183,11 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             handshake,
             live,
             estimator,
+            kb: cam.kb.clone(),
+            templates: Arc::new(Mutex::new(entries)),
+            params: params.clone(),
             robot: robot_view,
-            thread: Some(thread),
+            thread: Mutex::new(Some(thread)),
         });
     }
     let stations = Arc::new(Stations::new(stations, started));
@@ -221,7 +233,22 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
     for (name, rc, rx, view, _hs) in robot_links {
         tasks.push(tokio::spawn(crate::robot::link::run(name, rc, rx, view, shutdown.clone())));
     }
-    Ok(Running { modbus_addr, cameras, stations, stats, started, shutdown, stop, tasks })
+    let cameras = Arc::new(cameras);
+    let http_addr = match &cfg.http {
+        Some(h) => {
+            let listener = TcpListener::bind(h.bind).await.map_err(|source| StartError::Bind { addr: h.bind, source })?;
+            let addr = listener.local_addr().map_err(|source| StartError::Bind { addr: h.bind, source })?;
+            let state = crate::http::AppState { cameras: cameras.clone(), stats: stats.clone(), started, token: h.token.clone() };
+            tracing::info!(
+                "operator view on http://{addr}/ ({})",
+                if h.token.is_some() { "changes need the token" } else { "read-only: no token configured" }
+            );
+            tasks.push(tokio::spawn(crate::http::serve(listener, state, shutdown.clone())));
+            Some(addr)
+        }
+        None => None,
+    };
+    Ok(Running { modbus_addr, http_addr, cameras, stations, stats, started, shutdown, stop, tasks })
 }
 
 impl Running {
@@ -232,8 +259,9 @@ impl Running {
         for t in self.tasks.drain(..) {
             let _ = t.await;
         }
-        for c in &mut self.cameras {
-            if let Some(t) = c.thread.take() {
+        for c in self.cameras.iter() {
+            let thread = c.thread.lock().unwrap_or_else(|p| p.into_inner()).take();
+            if let Some(t) = thread {
                 let _ = tokio::task::spawn_blocking(move || t.join()).await;
             }
         }

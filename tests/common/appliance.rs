@@ -13,7 +13,7 @@ use tokio_modbus::prelude::*;
 /// A small simulated camera (fast to render and estimate) at unit id 1, plus extra TOML.
 pub fn config(extra_modbus: &str, camera_extra: &str) -> Config {
     let text = format!(
-        "[modbus]\nbind = \"127.0.0.1:0\"\n{extra_modbus}\n[log]\nlevel = \"warn\"\n[[camera]]\nunit_id = 1\nkb_from_simulator = true\nmm_per_px = 0.5\n{camera_extra}\n[camera.source]\nkind = \"sim\"\nwidth = 640\nheight = 480\nscenes = 9\nseed = 4\n"
+        "[modbus]\nbind = \"127.0.0.1:0\"\n{extra_modbus}\n[http]\nbind = \"127.0.0.1:0\"\ntoken = \"test-token-123\"\n[log]\nlevel = \"warn\"\n[[camera]]\nunit_id = 1\nkb_from_simulator = true\nmm_per_px = 0.5\n{camera_extra}\n[camera.source]\nkind = \"sim\"\nwidth = 640\nheight = 480\nscenes = 9\nseed = 4\n"
     );
     Config::from_toml(&text, Path::new("test.toml")).expect("test configuration is valid")
 }

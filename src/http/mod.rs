@@ -1,0 +1,536 @@
+//! The operator view: a small web page served by the appliance (axum), its JSON API,
+//! `/metrics` (Prometheus text) and `/healthz`.
+//!
+//! Reading never changes anything. Enrolling a template from the current frame needs the token
+//! from `[http] token` (sent as `Authorization: Bearer <token>`); without a configured token the
+//! view is read-only. Every change is logged with the client's address.
+
+use std::error::Error as _;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Instant;
+
+use axum::Router;
+use axum::extract::{ConnectInfo, Path, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::{get, post};
+use serde::{Deserialize, Serialize};
+use tokio::net::TcpListener;
+use tokio_util::sync::CancellationToken;
+
+use crate::appliance::CameraHandle;
+use crate::config::KbSource;
+use crate::handshake::WordOrder;
+use crate::modbus::map::{self, Kind, MAP};
+use crate::modbus::server::Stats;
+use crate::vision::{Estimator, Face, GrayImage, Reason, Template};
+
+const PAGE: &str = include_str!("page.html");
+
+/// What the handlers share.
+#[derive(Clone)]
+pub struct AppState {
+    pub cameras: Arc<Vec<CameraHandle>>,
+    pub stats: Arc<Stats>,
+    pub started: Instant,
+    pub token: Option<String>,
+}
+
+pub async fn serve(listener: TcpListener, state: AppState, shutdown: CancellationToken) {
+    let app = router(state);
+    let served = axum::serve(listener, app.into_make_service_with_connect_info::<SocketAddr>())
+        .with_graceful_shutdown(async move { shutdown.cancelled().await })
+        .await;
+    if let Err(e) = served {
+        tracing::warn!("operator view stopped: {e}");
+    }
+}
+
+pub fn router(state: AppState) -> Router {
+    Router::new()
+        .route("/", get(|| async { Html(PAGE) }))
+        .route("/healthz", get(healthz))
+        .route("/metrics", get(metrics))
+        .route("/api/state", get(api_state))
+        .route("/api/camera/{unit}/frame.jpg", get(frame_jpg))
+        .route("/api/camera/{unit}/templates", get(templates))
+        .route("/api/camera/{unit}/template/{index}", get(template_png))
+        .route("/api/camera/{unit}/enroll", post(enroll))
+        .with_state(state)
+}
+
+type Failure = (StatusCode, String);
+
+fn camera(state: &AppState, unit: u8) -> Result<&CameraHandle, Failure> {
+    state.cameras.iter().find(|c| c.unit_id == unit).ok_or((StatusCode::NOT_FOUND, format!("no camera with unit id {unit}")))
+}
+
+async fn healthz(State(state): State<AppState>) -> Response {
+    let bad: Vec<String> = state
+        .cameras
+        .iter()
+        .filter(|c| !c.handshake.lock().unwrap_or_else(|p| p.into_inner()).camera_ok())
+        .map(|c| c.name.clone())
+        .collect();
+    let text = [(header::CONTENT_TYPE, "text/plain; charset=utf-8")];
+    if bad.is_empty() {
+        (StatusCode::OK, text, "ok\n".to_string()).into_response()
+    } else {
+        (StatusCode::SERVICE_UNAVAILABLE, text, format!("camera not ok: {}\n", bad.join(", "))).into_response()
+    }
+}
+
+fn percentile(v: &[f64], q: f64) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    s[((s.len() - 1) as f64 * q).round() as usize]
+}
+
+/// Metric families: name, type, help.
+const FAMILIES: [(&str, &str, &str); 17] = [
+    ("lfi_modbus_clients", "gauge", "Modbus/TCP clients connected."),
+    ("lfi_modbus_requests_total", "counter", "Modbus requests answered."),
+    ("lfi_modbus_exceptions_total", "counter", "Modbus requests answered with an exception."),
+    ("lfi_modbus_refused_total", "counter", "Connections refused at max_connections."),
+    ("lfi_frames_total", "counter", "Frames estimated."),
+    ("lfi_frame_errors_total", "counter", "Acquisitions without a usable frame."),
+    ("lfi_parts_accepted_total", "counter", "Parts accepted."),
+    ("lfi_parts_rejected_total", "counter", "Parts rejected, by reason."),
+    ("lfi_cycle_time_ms", "summary", "Trigger to results queued, last 512 cycles."),
+    ("lfi_results_pending", "gauge", "Results waiting for RESULT_ACK."),
+    ("lfi_acquisitions_total", "counter", "Acquisitions started."),
+    ("lfi_missed_triggers_total", "counter", "Triggers while busy, offline or in error."),
+    ("lfi_results_dropped_total", "counter", "Results dropped because the queue was full."),
+    ("lfi_camera_ok", "gauge", "1 when the camera delivers frames."),
+    ("lfi_robot_connected", "gauge", "1 when the robot link is connected."),
+    ("lfi_robot_queue", "gauge", "Parts waiting for the robot."),
+    ("lfi_robot_delivered", "gauge", "Parts the robot acknowledged (16-bit counter)."),
+];
+
+async fn metrics(State(state): State<AppState>) -> Response {
+    use std::fmt::Write;
+    use std::sync::atomic::Ordering::Relaxed;
+    let mut m = String::new();
+    for (name, kind, help) in FAMILIES {
+        let _ = writeln!(m, "# HELP {name} {help}\n# TYPE {name} {kind}");
+        let global = match name {
+            "lfi_modbus_clients" => Some(state.stats.connected.load(Relaxed)),
+            "lfi_modbus_requests_total" => Some(state.stats.requests.load(Relaxed)),
+            "lfi_modbus_exceptions_total" => Some(state.stats.exceptions.load(Relaxed)),
+            "lfi_modbus_refused_total" => Some(state.stats.refused.load(Relaxed)),
+            _ => None,
+        };
+        if let Some(v) = global {
+            let _ = writeln!(m, "{name} {v}");
+            continue;
+        }
+        for c in state.cameras.iter() {
+            let l = format!("camera=\"{}\",unit_id=\"{}\"", c.name.replace(['"', '\\', '\n'], "_"), c.unit_id);
+            let live = c.live.lock().unwrap_or_else(|p| p.into_inner());
+            let hs = c.handshake.lock().unwrap_or_else(|p| p.into_inner());
+            let counters = hs.counters();
+            let robot = c.robot.as_ref().map(|r| *r.lock().unwrap_or_else(|p| p.into_inner()));
+            let mut line = |v: String| {
+                let _ = writeln!(m, "{name}{{{l}}} {v}");
+            };
+            match name {
+                "lfi_frames_total" => line(live.frames.to_string()),
+                "lfi_frame_errors_total" => line(live.frame_errors.to_string()),
+                "lfi_parts_accepted_total" => line(live.accepted.to_string()),
+                "lfi_results_pending" => line(hs.queue().len().to_string()),
+                "lfi_acquisitions_total" => line(counters.acquisitions.to_string()),
+                "lfi_missed_triggers_total" => line(counters.missed_triggers.to_string()),
+                "lfi_results_dropped_total" => line(counters.dropped.to_string()),
+                "lfi_camera_ok" => line((hs.camera_ok() as u8).to_string()),
+                "lfi_robot_connected" => {
+                    if let Some(v) = robot {
+                        line(((v.bits & map::robot_status::CONNECTED != 0) as u8).to_string())
+                    }
+                }
+                "lfi_robot_queue" => {
+                    if let Some(v) = robot {
+                        line(v.queue.to_string())
+                    }
+                }
+                "lfi_robot_delivered" => {
+                    if let Some(v) = robot {
+                        line(v.delivered.to_string())
+                    }
+                }
+                "lfi_parts_rejected_total" => {
+                    for r in Reason::ALL.iter().skip(1) {
+                        let _ = writeln!(m, "{name}{{{l},reason=\"{}\"}} {}", r.as_str(), live.rejected[r.code() as usize]);
+                    }
+                }
+                _ => {
+                    let v: Vec<f64> = live.cycle_ms.iter().copied().collect();
+                    for q in [0.5, 0.95, 0.99] {
+                        let _ = writeln!(m, "{name}{{{l},quantile=\"{q}\"}} {:.3}", percentile(&v, q));
+                    }
+                    let _ = writeln!(m, "{name}_sum{{{l}}} {:.3}\n{name}_count{{{l}}} {}", v.iter().sum::<f64>(), v.len());
+                }
+            }
+        }
+    }
+    (StatusCode::OK, [(header::CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")], m).into_response()
+}
+
+#[derive(Serialize)]
+struct RegisterView {
+    addr: u16,
+    plc: u32,
+    name: &'static str,
+    access: &'static str,
+    raw: Vec<u16>,
+    value: String,
+    unit: &'static str,
+}
+
+#[derive(Serialize)]
+struct Lamp {
+    name: &'static str,
+    on: bool,
+}
+
+#[derive(Serialize)]
+struct PartView {
+    index: usize,
+    accepted: bool,
+    reason: &'static str,
+    type_name: Option<String>,
+    face: Option<&'static str>,
+    angle_deg: f64,
+    x_px: f64,
+    y_px: f64,
+    confidence: f64,
+    detail: String,
+}
+
+#[derive(Serialize)]
+struct CameraView {
+    unit_id: u8,
+    name: String,
+    frame_seq: u64,
+    frame_label: String,
+    registers: Vec<RegisterView>,
+    status: Vec<Lamp>,
+    robot: Option<Vec<Lamp>>,
+    frames: u64,
+    frame_errors: u64,
+    accepted: u64,
+    rejected: Vec<(String, u64)>,
+    cycle_median_ms: f64,
+    cycle_p95_ms: f64,
+    /// Cycle-time histogram: counts in bins of `histogram_bin_ms` from 0 (the last bin is open).
+    histogram: Vec<u32>,
+    histogram_bin_ms: f64,
+    parts: Vec<PartView>,
+    last_error: Option<String>,
+}
+
+#[derive(Serialize)]
+struct StateView {
+    uptime_s: f64,
+    modbus_clients: usize,
+    modbus_requests: usize,
+    modbus_exceptions: usize,
+    can_change: bool,
+    cameras: Vec<CameraView>,
+}
+
+/// Register contents decoded for people: scaled values, signed words, floats, bit patterns.
+fn decode(words: &[u16], order: WordOrder) -> Vec<RegisterView> {
+    MAP.iter()
+        .map(|r| {
+            let a = r.addr as usize;
+            let raw: Vec<u16> = if r.kind == Kind::F32 { words[a..a + 2].to_vec() } else { vec![words[a]] };
+            let w = raw[0];
+            let value = match (r.kind, r.unit) {
+                (Kind::I16, "0.01 deg") => format!("{:.2} deg", w as i16 as f64 / 100.0),
+                (Kind::I16, "0.1 mm") => format!("{:.1} mm", w as i16 as f64 / 10.0),
+                (Kind::I16, _) => (w as i16).to_string(),
+                (Kind::U16, "0.1 ms") => format!("{:.1} ms", w as f64 / 10.0),
+                (Kind::U16, "0.001") => format!("{:.3}", w as f64 / 1000.0),
+                (Kind::Bits, _) => format!("{w:08b}"),
+                (Kind::F32, unit) => {
+                    let bits = match order {
+                        WordOrder::HighFirst => ((raw[0] as u32) << 16) | raw[1] as u32,
+                        WordOrder::LowFirst => ((raw[1] as u32) << 16) | raw[0] as u32,
+                    };
+                    format!("{:.3} {unit}", f32::from_bits(bits))
+                }
+                _ => w.to_string(),
+            };
+            RegisterView {
+                addr: r.addr,
+                plc: 400_001 + r.addr as u32,
+                name: r.name,
+                access: if r.access == map::Access::ReadWrite { "R/W" } else { "R" },
+                raw,
+                value,
+                unit: r.unit,
+            }
+        })
+        .collect()
+}
+
+fn camera_view(c: &CameraHandle) -> CameraView {
+    // The same snapshot the Modbus server serves: one lock, one read of the whole map.
+    let (words, order) = {
+        let hs = c.handshake.lock().unwrap_or_else(|p| p.into_inner());
+        (hs.read(0, map::SIZE), hs.settings().word_order)
+    };
+    let live = c.live.lock().unwrap_or_else(|p| p.into_inner());
+    let cycles: Vec<f64> = live.cycle_ms.iter().copied().collect();
+    let p95 = percentile(&cycles, 0.95);
+    let bin = ((p95.max(1.0) * 1.25) / 12.0).max(0.5);
+    let mut histogram = vec![0u32; 12];
+    for v in &cycles {
+        histogram[((v / bin) as usize).min(11)] += 1;
+    }
+    let lamps = |word: u16, names: &[&'static str]| {
+        names.iter().enumerate().map(|(i, n)| Lamp { name: n, on: word & (1 << i) != 0 }).collect::<Vec<_>>()
+    };
+    CameraView {
+        unit_id: c.unit_id,
+        name: c.name.clone(),
+        frame_seq: live.seq,
+        frame_label: live.label.clone(),
+        registers: decode(&words, order),
+        status: lamps(words[map::addr::STATUS as usize], &map::status::NAMES),
+        robot: c.robot.as_ref().map(|_| lamps(words[map::addr::ROBOT_STATUS as usize], &map::robot_status::NAMES)),
+        frames: live.frames,
+        frame_errors: live.frame_errors,
+        accepted: live.accepted,
+        rejected: Reason::ALL.iter().skip(1).map(|r| (r.as_str().to_string(), live.rejected[r.code() as usize])).collect(),
+        cycle_median_ms: percentile(&cycles, 0.5),
+        cycle_p95_ms: p95,
+        histogram,
+        histogram_bin_ms: bin,
+        parts: live
+            .estimate
+            .iter()
+            .flat_map(|fe| fe.parts.iter().enumerate())
+            .map(|(i, p)| PartView {
+                index: i,
+                accepted: p.accepted,
+                reason: p.reason.as_str(),
+                type_name: p.type_name.clone(),
+                face: p.face.map(|f| f.as_str()),
+                angle_deg: p.angle_deg,
+                x_px: p.x,
+                y_px: p.y,
+                confidence: p.confidence,
+                detail: p.detail.clone(),
+            })
+            .collect(),
+        last_error: live.last_error.clone(),
+    }
+}
+
+async fn api_state(State(state): State<AppState>) -> Response {
+    use std::sync::atomic::Ordering::Relaxed;
+    let view = StateView {
+        uptime_s: state.started.elapsed().as_secs_f64(),
+        modbus_clients: state.stats.connected.load(Relaxed),
+        modbus_requests: state.stats.requests.load(Relaxed),
+        modbus_exceptions: state.stats.exceptions.load(Relaxed),
+        can_change: state.token.is_some(),
+        cameras: state.cameras.iter().map(camera_view).collect(),
+    };
+    ([(header::CACHE_CONTROL, "no-store")], axum::Json(view)).into_response()
+}
+
+async fn frame_jpg(State(state): State<AppState>, Path(unit): Path<u8>) -> Result<Response, Failure> {
+    let cam = camera(&state, unit)?;
+    let (frame, estimate) = {
+        let live = cam.live.lock().unwrap_or_else(|p| p.into_inner());
+        (live.frame.clone(), live.estimate.clone())
+    };
+    let (Some(frame), Some(estimate)) = (frame, estimate) else { return Err((StatusCode::NOT_FOUND, "no frame yet".into())) };
+    let estimator = cam.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
+    let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, Failure> {
+        let scale = (960.0 / frame.width as f64).min(1.0);
+        let view = frame.view().map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+        let pic =
+            crate::overlay::draw(view, &estimate, &estimator, scale).map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+        crate::imageio::encode_mat(&pic, ".jpg").map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e))
+    })
+    .await
+    .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
+    Ok(([(header::CONTENT_TYPE, "image/jpeg"), (header::CACHE_CONTROL, "no-store")], bytes).into_response())
+}
+
+#[derive(Serialize)]
+struct TemplateView {
+    index: usize,
+    type_name: String,
+    type_id: u16,
+    face: &'static str,
+    source: String,
+    outline_points: usize,
+    line_features: usize,
+}
+
+async fn templates(State(state): State<AppState>, Path(unit): Path<u8>) -> Result<Response, Failure> {
+    let cam = camera(&state, unit)?;
+    let list: Vec<TemplateView> = cam
+        .templates
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .iter()
+        .enumerate()
+        .map(|(i, (t, src))| TemplateView {
+            index: i,
+            type_name: t.type_name.clone(),
+            type_id: t.type_id,
+            face: t.face.as_str(),
+            source: src.clone(),
+            outline_points: t.outline.len(),
+            line_features: t.segments.len(),
+        })
+        .collect();
+    Ok(axum::Json(list).into_response())
+}
+
+/// A thumbnail of a template: its outline filled and its line features drawn (the knowledge
+/// base keeps features, not pictures).
+async fn template_png(State(state): State<AppState>, Path((unit, index)): Path<(u8, usize)>) -> Result<Response, Failure> {
+    use opencv::core::{Mat, Point, Scalar, Vector};
+    use opencv::imgproc;
+    let cam = camera(&state, unit)?;
+    let t = cam
+        .templates
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .get(index)
+        .map(|(t, _)| t.clone())
+        .ok_or((StatusCode::NOT_FOUND, format!("no template {index}")))?;
+    let size = 160.0;
+    let (lo, hi) = crate::vision::geometry::bounds(&t.outline);
+    let s = (size - 16.0) / (hi.x - lo.x).max(hi.y - lo.y).max(1.0);
+    let at = |x: f64, y: f64| Point::new(((x - lo.x) * s + 8.0) as i32, ((y - lo.y) * s + 8.0) as i32);
+    let draw = || -> opencv::Result<Mat> {
+        let mut img = Mat::new_rows_cols_with_default(size as i32, size as i32, opencv::core::CV_8UC3, Scalar::new(40.0, 40.0, 40.0, 0.0))?;
+        let mut poly = Vector::<Vector<Point>>::new();
+        poly.push(t.outline.iter().map(|p| at(p.x, p.y)).collect());
+        imgproc::fill_poly(&mut img, &poly, Scalar::new(150.0, 150.0, 150.0, 0.0), imgproc::LINE_AA, 0, Point::new(0, 0))?;
+        for sg in &t.segments {
+            imgproc::line(&mut img, at(sg.a.x, sg.a.y), at(sg.b.x, sg.b.y), Scalar::new(0.0, 200.0, 255.0, 0.0), 1, imgproc::LINE_AA, 0)?;
+        }
+        Ok(img)
+    };
+    let img = draw().map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+    let png = crate::imageio::encode_mat(&img, ".png").map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e))?;
+    Ok(([(header::CONTENT_TYPE, "image/png")], png).into_response())
+}
+
+#[derive(Deserialize)]
+struct EnrollRequest {
+    /// Index of the part in the current frame's estimate.
+    part: usize,
+    #[serde(rename = "type")]
+    type_name: String,
+    id: u16,
+    face: String,
+}
+
+fn authorized(state: &AppState, headers: &HeaderMap) -> Result<(), Failure> {
+    let Some(token) = &state.token else {
+        return Err((
+            StatusCode::FORBIDDEN,
+            "the operator view is read-only: set [http] token in the configuration to allow changes".into(),
+        ));
+    };
+    let given = headers.get(header::AUTHORIZATION).and_then(|v| v.to_str().ok()).and_then(|v| v.strip_prefix("Bearer ")).unwrap_or("");
+    // Compare without an early exit: the token guards a production line.
+    let same = given.len() == token.len() && given.bytes().zip(token.bytes()).fold(0u8, |acc, (a, b)| acc | (a ^ b)) == 0;
+    if same { Ok(()) } else { Err((StatusCode::UNAUTHORIZED, "wrong or missing token (Authorization: Bearer <token>)".into())) }
+}
+
+/// Cuts the part out of the frame: a square centred on its outline's centroid, so the new
+/// template's origin (the image centre) is that centroid.
+fn crop_part(frame: &GrayImage, outline: &[crate::vision::Pt]) -> Result<GrayImage, String> {
+    let (_, c) = crate::vision::geometry::area_centroid(outline);
+    let r = outline.iter().map(|p| (*p - c).norm()).fold(0.0, f64::max);
+    let half = (r + 40.0).ceil() as i64;
+    let (cx, cy) = (c.x.round() as i64, c.y.round() as i64);
+    if cx - half < 0 || cy - half < 0 || cx + half >= frame.width as i64 || cy + half >= frame.height as i64 {
+        return Err("the part is too close to the frame border to cut out a template with a margin".into());
+    }
+    let side = (2 * half + 1) as usize;
+    let mut out = GrayImage::new(side, side, 0);
+    for y in 0..side {
+        let src = (cy - half) as usize + y;
+        let x0 = (cx - half) as usize;
+        out.data[y * side..(y + 1) * side].copy_from_slice(&frame.data[src * frame.width + x0..src * frame.width + x0 + side]);
+    }
+    Ok(out)
+}
+
+async fn enroll(
+    State(state): State<AppState>,
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    Path(unit): Path<u8>,
+    headers: HeaderMap,
+    axum::Json(req): axum::Json<EnrollRequest>,
+) -> Result<Response, Failure> {
+    if let Err(e) = authorized(&state, &headers) {
+        tracing::warn!(%peer, "refused an enrollment request: {}", e.1);
+        return Err(e);
+    }
+    let cam = camera(&state, unit)?;
+    let face: Face = req.face.parse().map_err(|e: String| (StatusCode::BAD_REQUEST, e))?;
+    let (frame, estimate, label) = {
+        let live = cam.live.lock().unwrap_or_else(|p| p.into_inner());
+        (live.frame.clone(), live.estimate.clone(), live.label.clone())
+    };
+    let (Some(frame), Some(estimate)) = (frame, estimate) else {
+        return Err((StatusCode::CONFLICT, "no frame yet: trigger one first".into()));
+    };
+    let part = estimate.parts.get(req.part).ok_or((StatusCode::BAD_REQUEST, format!("the current frame has no part {}", req.part)))?;
+    let crop = crop_part(&frame, &part.outline).map_err(|e| (StatusCode::BAD_REQUEST, e))?;
+    let view = crop.view().map_err(|e| (StatusCode::BAD_REQUEST, e.to_string()))?;
+    let template = Template::from_image(view, &req.type_name, req.id, face, None, &cam.params)
+        .map_err(|e| (StatusCode::BAD_REQUEST, e.to_string()))?;
+    let from = if label.is_empty() { "the current frame".to_string() } else { label };
+    let source = format!("operator view ({peer}): {from}, part {}", req.part);
+    let mut kb = crate::kb::KnowledgeBase {
+        entries: cam
+            .templates
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .iter()
+            .map(|(t, s)| crate::kb::Entry { template: t.clone(), source: s.clone() })
+            .collect(),
+    };
+    let replaced = kb.enroll(template, source).map_err(|e| (StatusCode::CONFLICT, e.to_string()))?;
+    let all = kb.templates();
+    let estimator = Estimator::new(&all, cam.params.clone()).map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+    // The knowledge base file first: if it cannot be written, nothing changes.
+    let saved = match &cam.kb {
+        KbSource::File(path) => {
+            let png = path.with_file_name(format!("{}_{}.png", req.type_name.replace(['/', '\\', '.'], "_"), face));
+            crate::imageio::write_png(&png, &crop).map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+            kb.save(path).map_err(|e| {
+                (StatusCode::INTERNAL_SERVER_ERROR, format!("{e}: {}", e.source().map(|s| s.to_string()).unwrap_or_default()))
+            })?;
+            format!("saved to {} (template image {})", path.display(), png.display())
+        }
+        KbSource::Simulator => "kept in memory only (kb_from_simulator)".to_string(),
+    };
+    *cam.estimator.write().unwrap_or_else(|p| p.into_inner()) = Arc::new(estimator);
+    let types = kb.type_count() as u16;
+    *cam.templates.lock().unwrap_or_else(|p| p.into_inner()) = kb.entries.into_iter().map(|e| (e.template, e.source)).collect();
+    cam.handshake.lock().unwrap_or_else(|p| p.into_inner()).set_types_enrolled(types);
+    tracing::info!(%peer, camera = %cam.name, "{} template {} {} (id {}) from part {} of {from}; {saved}", if replaced { "replaced" } else { "enrolled" }, req.type_name, face, req.id, req.part);
+    Ok((
+        StatusCode::OK,
+        axum::Json(serde_json::json!({ "type": req.type_name, "face": face.as_str(), "id": req.id, "replaced": replaced, "saved": saved })),
+    )
+        .into_response())
+}
