@@ -194,26 +194,16 @@ mod over_tcp {
         let mut last_seq = 0u16;
         let mut results = 0u32;
         let mut multi = 0u32;
-        for cycle in 1..=1000u16 {
-            wait_status(&mut ctx, |s| s & status::READY != 0, Duration::from_secs(10)).await;
-            write(&mut ctx, addr::TRIGGER, 1).await;
-            wait_status(&mut ctx, |s| s & status::TRIGGER_ACK != 0 && s & status::BUSY == 0, Duration::from_secs(10)).await;
-            write(&mut ctx, addr::TRIGGER, 0).await;
-            // Consume every result of this frame.
-            loop {
-                let block = read(&mut ctx, 100, 120).await;
-                if block[0] & status::RESULT_VALID == 0 {
-                    break;
-                }
+        for n in 1..=1000u16 {
+            for block in cycle(&mut ctx).await {
                 let (seq, acq, count) = (block[100], block[101], block[111]);
-                assert_eq!(seq, last_seq.wrapping_add(1), "cycle {cycle}: sequence");
-                assert_eq!(acq, cycle, "cycle {cycle}: result of another acquisition");
+                assert_eq!(seq, last_seq.wrapping_add(1), "cycle {n}: sequence");
+                assert_eq!(acq, n, "cycle {n}: result of another acquisition");
                 if count > 1 {
                     multi += 1;
                 }
                 last_seq = seq;
                 results += 1;
-                write(&mut ctx, addr::RESULT_ACK, seq).await;
             }
         }
         let s = read(&mut ctx, 100, 7).await;
@@ -241,17 +231,7 @@ mod over_tcp {
         });
         let mut ctx = plc(addr0, 1).await;
         for _ in 0..100 {
-            wait_status(&mut ctx, |s| s & status::READY != 0, Duration::from_secs(10)).await;
-            write(&mut ctx, addr::TRIGGER, 1).await;
-            wait_status(&mut ctx, |s| s & status::TRIGGER_ACK != 0 && s & status::BUSY == 0, Duration::from_secs(10)).await;
-            write(&mut ctx, addr::TRIGGER, 0).await;
-            loop {
-                let b = read(&mut ctx, 100, 101).await;
-                if b[0] & status::RESULT_VALID == 0 {
-                    break;
-                }
-                write(&mut ctx, addr::RESULT_ACK, b[100]).await;
-            }
+            cycle(&mut ctx).await;
         }
         assert_eq!(observer.await.unwrap(), 400);
         let s = read(&mut ctx, 103, 4).await;

@@ -210,17 +210,7 @@ async fn fifty_clients_polling_a_hundred_times_a_second_see_no_errors() {
     // Meanwhile the PLC keeps triggering.
     let mut plc_ctx = plc(a, 1).await;
     for _ in 0..10 {
-        wait_status(&mut plc_ctx, |s| s & status::READY != 0, Duration::from_secs(10)).await;
-        write(&mut plc_ctx, addr::TRIGGER, 1).await;
-        wait_status(&mut plc_ctx, |s| s & status::TRIGGER_ACK != 0 && s & status::BUSY == 0, Duration::from_secs(10)).await;
-        write(&mut plc_ctx, addr::TRIGGER, 0).await;
-        loop {
-            let b = read(&mut plc_ctx, 100, 101).await;
-            if b[0] & status::RESULT_VALID == 0 {
-                break;
-            }
-            write(&mut plc_ctx, addr::RESULT_ACK, b[100]).await;
-        }
+        cycle(&mut plc_ctx).await;
     }
     let mut total = 0;
     for c in clients {

@@ -6,7 +6,7 @@ mod common;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use common::appliance::{plc, read, start, wait_status, write};
+use common::appliance::{cycle, plc, read, start};
 use common::fanuc::{Fanuc, Picked, Program, tp_program};
 use lfi_bridge::config::{RobotConfig, RobotSend};
 use lfi_bridge::handshake::{PartResult, RobotView};
@@ -239,19 +239,10 @@ async fn the_plc_and_the_robot_consume_the_same_frames_at_different_speeds() {
     let mut ctx = plc(running.modbus_addr, 1).await;
     let mut accepted_by_plc: Vec<(u16, i16, i16)> = Vec::new();
     for _ in 0..27 {
-        wait_status(&mut ctx, |s| s & status::READY != 0, Duration::from_secs(10)).await;
-        write(&mut ctx, addr::TRIGGER, 1).await;
-        wait_status(&mut ctx, |s| s & status::TRIGGER_ACK != 0 && s & status::BUSY == 0, Duration::from_secs(10)).await;
-        write(&mut ctx, addr::TRIGGER, 0).await;
-        loop {
-            let b = read(&mut ctx, 100, 120).await;
-            if b[0] & status::RESULT_VALID == 0 {
-                break;
-            }
+        for b in cycle(&mut ctx).await {
             if b[102] == 1 {
                 accepted_by_plc.push((b[104], b[107] as i16, b[108] as i16));
             }
-            write(&mut ctx, addr::RESULT_ACK, b[100]).await;
         }
     }
     assert!(accepted_by_plc.len() >= 10, "only {} accepted parts", accepted_by_plc.len());

@@ -140,7 +140,7 @@ impl Worker {
                         tracing::info!(camera = %self.name, acq_id, frame = %f.label, "no part");
                     }
                     let processing_ms = fe.timings.total;
-                    self.note_frame(f.image, fe);
+                    self.note_frame(f.image, f.label, fe);
                     Outcome::Parts { parts, processing_ms }
                 }
             },
@@ -231,7 +231,7 @@ impl Worker {
         live.last_error = Some(msg);
     }
 
-    fn note_frame(&self, image: GrayImage, fe: FrameEstimate) {
+    fn note_frame(&self, image: GrayImage, label: String, fe: FrameEstimate) {
         let mut live = self.live.lock().unwrap_or_else(|p| p.into_inner());
         live.frames += 1;
         for p in &fe.parts {
@@ -243,6 +243,7 @@ impl Worker {
         }
         live.frame = Some(Arc::new(image));
         live.estimate = Some(fe);
+        live.label = label;
         live.seq += 1;
         live.at_s = self.started.elapsed().as_secs_f64();
     }

@@ -149,6 +149,14 @@ mod tests {
         assert!(parse_request(&[0x10, 0, 0, 0, 1, 2, 0, 1]).is_ok());
     }
 
+    /// tokio-modbus's own decoder, handed the overflowing FC16 directly, must not panic in this
+    /// (debug) profile: Cargo.toml turns its overflow checks off.
+    #[test]
+    fn tokio_modbus_decoder_survives_a_quantity_of_0x8000() {
+        let pdu = tokio_modbus::bytes::Bytes::from_static(&[0x10, 0, 0, 0x80, 0x00, 0]);
+        assert!(Request::try_from(pdu).is_err());
+    }
+
     #[test]
     fn encodes_responses_and_exceptions() {
         let r = encode(7, 1, 3, &Ok(Response::ReadHoldingRegisters(vec![0x0102, 0x0304])));

@@ -50,8 +50,6 @@ pub struct Coarse {
     pub small: Mat,
     /// Canny edges of the decimated frame (input of the fast line detector).
     pub edges: Mat,
-    /// The automatic (high) Canny threshold.
-    pub auto_threshold: f64,
     pub blobs: Vec<Blob>,
 }
 
@@ -192,5 +190,5 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
         }
         blobs.push(Blob { outline, area: a.abs(), touches_border, coarse_rect: r, mask, mask_origin: Point::new(r.x - m, r.y - m) });
     }
-    Ok(Coarse { factor: f, small, edges, auto_threshold: auto, blobs })
+    Ok(Coarse { factor: f, small, edges, blobs })
 }

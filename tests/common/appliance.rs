@@ -46,3 +46,23 @@ pub async fn wait_status(ctx: &mut client::Context, pred: impl Fn(u16) -> bool, 
         tokio::time::sleep(Duration::from_millis(2)).await;
     }
 }
+
+/// One PLC cycle: waits for READY, triggers, waits for the acknowledgement and BUSY = 0, releases
+/// TRIGGER, then consumes every queued result. Returns each result's block of registers 100..219
+/// (index 0 is STATUS, index 100 RESULT_SEQ), in the order consumed.
+pub async fn cycle(ctx: &mut client::Context) -> Vec<Vec<u16>> {
+    use lfi_bridge::modbus::map::{addr, status};
+    wait_status(ctx, |s| s & status::READY != 0, Duration::from_secs(10)).await;
+    write(ctx, addr::TRIGGER, 1).await;
+    wait_status(ctx, |s| s & status::TRIGGER_ACK != 0 && s & status::BUSY == 0, Duration::from_secs(10)).await;
+    write(ctx, addr::TRIGGER, 0).await;
+    let mut results = Vec::new();
+    loop {
+        let block = read(ctx, 100, 120).await;
+        if block[0] & status::RESULT_VALID == 0 {
+            return results;
+        }
+        write(ctx, addr::RESULT_ACK, block[100]).await;
+        results.push(block);
+    }
+}
