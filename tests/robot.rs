@@ -10,7 +10,7 @@ use common::appliance::{cycle, plc, read, start};
 use common::fanuc::{Fanuc, Picked, Program, tp_program};
 use lfi_bridge::config::{RobotConfig, RobotSend};
 use lfi_bridge::handshake::{PartResult, RobotView};
-use lfi_bridge::modbus::map::{addr, robot_status, status};
+use lfi_bridge::modbus::map::robot_status;
 use lfi_bridge::vision::Reason;
 use tokio_util::sync::CancellationToken;
 
