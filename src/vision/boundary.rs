@@ -134,7 +134,12 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     }
     let contrast = (l_part - l_belt).abs();
     clean_offsets(&mut offsets);
-    Refined { outline: (0..n).map(|i| smooth[i] + normals[i].scale(offsets[i])).collect(), contrast }
+    let outline: Vec<Pt> = (0..n).filter(|&i| offsets[i].is_finite()).map(|i| smooth[i] + normals[i].scale(offsets[i])).collect();
+    if outline.len() < n / 2 {
+        // Mostly no edge: keep the coarse outline rather than a few scattered points.
+        return Refined { outline: smooth, contrast };
+    }
+    Refined { outline, contrast }
 }
 
 /// Samples the frame at `base[i] + normal[i] * t` for every t, row i of an n x k array.
@@ -172,6 +177,10 @@ fn median(v: &mut [f64]) -> f64 {
 
 /// Replaces missing and isolated outlying offsets by the local median: a speck of dirt next to
 /// the part or a noise spike must not bend the outline.
+///
+/// A stretch where no neighbour found an edge either stays missing (NaN): the coarse region ran
+/// around something that is not the part (a speck of dirt closed onto it), and the refined outline
+/// bridges the gap with a chord instead of following it.
 fn clean_offsets(off: &mut [f64]) {
     let n = off.len();
     let src = off.to_vec();
@@ -185,7 +194,7 @@ fn clean_offsets(off: &mut [f64]) {
             }
         }
         if win.is_empty() {
-            off[i] = 0.0;
+            off[i] = f64::NAN;
             continue;
         }
         win.sort_by(f64::total_cmp);
