@@ -156,5 +156,4 @@ fn a_frame_with_no_part_is_an_empty_estimate() {
     assert!(out.status.success());
     let v: serde_json::Value = serde_json::from_str(text(&out.stdout).trim()).unwrap();
     assert_eq!(v["parts"].as_array().unwrap().len(), 0);
-    let _ = common::simulator;
 }

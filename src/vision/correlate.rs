@@ -16,6 +16,12 @@ pub struct Spectrum {
     pub bins: Vec<Complex<f64>>,
 }
 
+impl std::fmt::Debug for Spectrum {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Spectrum({} bins)", self.bins.len())
+    }
+}
+
 /// Result of correlating a part's signal with one template's.
 #[derive(Debug, Clone, Copy)]
 pub struct Alignment {

@@ -126,7 +126,7 @@ impl std::fmt::Display for Reason {
 }
 
 /// Tunables of the estimator. Defaults follow the method; the decision thresholds were set on
-/// the built-in simulator's scenes (see README, "Accuracy").
+/// the built-in simulator's scenes (README, "Measured accuracy").
 #[derive(Debug, Clone)]
 pub struct Params {
     /// Frame pixels per pixel of the decimated frame the coarse stages run on.

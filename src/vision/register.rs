@@ -259,7 +259,7 @@ pub fn measure(part: &[Pt], tmpl: &OutlineIndex, pose: Similarity, tolerance: f6
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::vision::geometry::{resample_closed, rotate_display};
+    use crate::vision::geometry::resample_closed;
 
     fn blob() -> Vec<Pt> {
         let raw: Vec<Pt> = (0..400)
@@ -285,7 +285,6 @@ mod tests {
         assert!((r.pose.angle_rad - 0.6).abs() < 1e-4);
         assert!((r.pose.scale - 1.04).abs() < 1e-4);
         assert!(r.inliers > 0.99 && r.coverage > 0.99);
-        let _ = rotate_display(Pt::new(1.0, 0.0), 0.0);
     }
 
     #[test]

@@ -116,12 +116,6 @@ pub struct Compiled {
     pub diag: f64,
 }
 
-impl std::fmt::Debug for Spectrum {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "Spectrum({} bins)", self.bins.len())
-    }
-}
-
 /// All enrolled templates, compiled once when the estimator is built.
 #[derive(Debug, Clone)]
 pub struct Library {
