@@ -295,4 +295,48 @@ mod tests {
         assert!(dir.path().join("done/a.png").exists() && dir.path().join("failed/b.png").exists());
         assert!(dir.path().join("notes.txt").exists());
     }
+
+    /// A recorded file stands in for a camera: OpenCV's built-in MJPEG writer needs no codec
+    /// package, so this runs wherever libopencv-dev does.
+    #[test]
+    fn video_source_reads_a_recorded_file_then_reports_its_end() {
+        use opencv::{core, prelude::*, videoio};
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("belt.avi");
+        let fourcc = videoio::VideoWriter::fourcc('M', 'J', 'P', 'G').unwrap();
+        let size = core::Size::new(160, 120);
+        let mut writer =
+            videoio::VideoWriter::new_with_backend(file.to_str().unwrap(), videoio::CAP_OPENCV_MJPEG, fourcc, 10.0, size, true).unwrap();
+        assert!(writer.is_opened().unwrap(), "OpenCV's MJPEG writer is available");
+        let levels = [40.0, 120.0, 200.0];
+        for level in levels {
+            let frame = core::Mat::new_rows_cols_with_default(120, 160, core::CV_8UC3, core::Scalar::all(level)).unwrap();
+            writer.write(&frame).unwrap();
+        }
+        writer.release().unwrap();
+
+        let mut src = VideoSource::new(file.to_str().unwrap(), Duration::from_millis(500));
+        assert!(src.ok());
+        for level in levels {
+            let frame = src.grab().expect("a recorded frame");
+            assert_eq!((frame.image.width, frame.image.height), (160, 120), "colour frames arrive as gray at full size");
+            let mean = frame.image.data.iter().map(|&v| v as f64).sum::<f64>() / frame.image.data.len() as f64;
+            assert!((mean - level).abs() < 4.0, "frame gray {mean:.1} is the recorded {level}");
+        }
+        let end = src.grab().unwrap_err();
+        assert!(matches!(&end, SourceError::Camera(m) if m.contains("belt.avi")), "{end}");
+        assert!(!src.ok(), "after the end of the stream the camera is not OK");
+        std::thread::sleep(Duration::from_millis(1100));
+        let again = src.grab().expect("after the retry delay the file is reopened");
+        let mean = again.image.data.iter().map(|&v| v as f64).sum::<f64>() / again.image.data.len() as f64;
+        assert!((mean - levels[0]).abs() < 4.0, "a file replays from its first frame ({mean:.1})");
+    }
+
+    #[test]
+    fn video_source_that_cannot_open_names_the_uri() {
+        let mut src = VideoSource::new("/nonexistent/camera.avi", Duration::from_millis(100));
+        assert!(!src.ok());
+        let e = src.grab().unwrap_err();
+        assert!(e.to_string().contains("/nonexistent/camera.avi"), "{e}");
+    }
 }
