@@ -305,12 +305,13 @@ mod tests {
         let file = dir.path().join("belt.avi");
         let fourcc = videoio::VideoWriter::fourcc('M', 'J', 'P', 'G').unwrap();
         let size = core::Size::new(160, 120);
+        let mean_gray = |f: &Frame| f.image.data.iter().map(|&v| v as f64).sum::<f64>() / f.image.data.len() as f64;
         let mut writer =
             videoio::VideoWriter::new_with_backend(file.to_str().unwrap(), videoio::CAP_OPENCV_MJPEG, fourcc, 10.0, size, true).unwrap();
         assert!(writer.is_opened().unwrap(), "OpenCV's MJPEG writer is available");
         let levels = [40.0, 120.0, 200.0];
         for level in levels {
-            let frame = core::Mat::new_rows_cols_with_default(120, 160, core::CV_8UC3, core::Scalar::all(level)).unwrap();
+            let frame = core::Mat::new_rows_cols_with_default(size.height, size.width, core::CV_8UC3, core::Scalar::all(level)).unwrap();
             writer.write(&frame).unwrap();
         }
         writer.release().unwrap();
@@ -320,7 +321,7 @@ mod tests {
         for level in levels {
             let frame = src.grab().expect("a recorded frame");
             assert_eq!((frame.image.width, frame.image.height), (160, 120), "colour frames arrive as gray at full size");
-            let mean = frame.image.data.iter().map(|&v| v as f64).sum::<f64>() / frame.image.data.len() as f64;
+            let mean = mean_gray(&frame);
             assert!((mean - level).abs() < 4.0, "frame gray {mean:.1} is the recorded {level}");
         }
         let end = src.grab().unwrap_err();
@@ -328,7 +329,7 @@ mod tests {
         assert!(!src.ok(), "after the end of the stream the camera is not OK");
         std::thread::sleep(Duration::from_millis(1100));
         let again = src.grab().expect("after the retry delay the file is reopened");
-        let mean = again.image.data.iter().map(|&v| v as f64).sum::<f64>() / again.image.data.len() as f64;
+        let mean = mean_gray(&again);
         assert!((mean - levels[0]).abs() < 4.0, "a file replays from its first frame ({mean:.1})");
     }
 
