@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use crate::truth::{EstimatePart, TruthRecord};
+use crate::truth::{EstimatePart, TruthRecord, UNCOVERED};
 use crate::vision::geometry::angle_diff_deg;
 
 /// Farthest a prediction may be from a true part's centroid to be its estimate, pixels.
@@ -38,6 +38,12 @@ struct Acc {
     face_ok: usize,
     pose_ok: usize,
     accepted: usize,
+    /// Accepted with the right pose (pick), and the same over the parts nothing covers (top).
+    picked: usize,
+    uncovered: usize,
+    uncovered_picked: usize,
+    /// Accepted parts that another part partly covers: a robot would drag the one on top.
+    covered_accepts: usize,
     false_accepts: usize,
     angle_err: Vec<f64>,
     centroid_err: Vec<f64>,
@@ -60,6 +66,14 @@ pub struct GroupReport {
     pub centroid_err_median: f64,
     pub centroid_err_p95: f64,
     pub pass_through: f64,
+    /// Accepted and pose right, over every part of an enrolled type.
+    pub pick: f64,
+    /// Accepted and pose right, over the parts nothing covers (visible fraction >= 0.98).
+    pub top: f64,
+    /// Parts nothing covers, the denominator of `top`.
+    pub uncovered_parts: usize,
+    /// Accepted parts with a visible fraction below 0.98 (must be 0).
+    pub covered_accepts: usize,
     pub false_accepts: usize,
     /// Parts of types not enrolled, and how many of them were rejected.
     pub unknown_parts: usize,
@@ -113,6 +127,10 @@ impl Acc {
             centroid_err_median: percentile(&self.centroid_err, 0.5),
             centroid_err_p95: percentile(&self.centroid_err, 0.95),
             pass_through: ratio(self.accepted, self.parts),
+            pick: ratio(self.picked, self.parts),
+            top: ratio(self.uncovered_picked, self.uncovered),
+            uncovered_parts: self.uncovered,
+            covered_accepts: self.covered_accepts,
             false_accepts: self.false_accepts,
             unknown_parts: self.unknown_parts,
             unknown_rejected: self.unknown_rejected,
@@ -201,8 +219,14 @@ pub fn evaluate(obs: &[Observation], enrolled: &[String]) -> Report {
                 acc.parts += 1;
                 acc.type_ok += type_ok as usize;
                 acc.face_ok += face_ok as usize;
-                acc.pose_ok += (face_ok && aerr <= POSE_TOLERANCE_DEG) as usize;
+                let pose_ok = face_ok && aerr <= POSE_TOLERANCE_DEG;
+                let uncovered = t.visible_fraction >= UNCOVERED;
+                acc.pose_ok += pose_ok as usize;
                 acc.accepted += accepted as usize;
+                acc.picked += (accepted && pose_ok) as usize;
+                acc.uncovered += uncovered as usize;
+                acc.uncovered_picked += (uncovered && accepted && pose_ok) as usize;
+                acc.covered_accepts += (!uncovered && accepted) as usize;
                 if face_ok {
                     acc.angle_err.push(aerr);
                     acc.centroid_err.push(cerr);
@@ -245,10 +269,13 @@ fn num(v: f64, prec: usize) -> String {
 pub fn render_text(r: &Report) -> String {
     let mut s = String::new();
     let header = format!(
-        "{:<14} {:>6} {:>6} {:>7} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>7} {:>5} {:>7} {:>8} {:>8}\n",
+        "{:<14} {:>6} {:>6} {:>7} {:>7} {:>7} {:>7} {:>7} {:>5} {:>8} {:>8} {:>8} {:>8} {:>8} {:>7} {:>5} {:>7} {:>8} {:>8}\n",
         "group",
         "frames",
         "parts",
+        "pick",
+        "top",
+        "cov.A",
         "type",
         "face",
         "pose",
@@ -265,10 +292,13 @@ pub fn render_text(r: &Report) -> String {
     );
     let row = |g: &GroupReport| {
         format!(
-            "{:<14} {:>6} {:>6} {:>7} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>7} {:>5} {:>7} {:>8} {:>8}\n",
+            "{:<14} {:>6} {:>6} {:>7} {:>7} {:>7} {:>7} {:>7} {:>5} {:>8} {:>8} {:>8} {:>8} {:>8} {:>7} {:>5} {:>7} {:>8} {:>8}\n",
             g.group,
             g.frames,
             g.parts,
+            pct(g.pick),
+            pct(g.top),
+            g.covered_accepts,
             pct(g.type_accuracy),
             pct(g.face_accuracy),
             pct(g.pose_accuracy),
@@ -294,7 +324,7 @@ pub fn render_text(r: &Report) -> String {
     s.push_str("\noverall\n");
     s.push_str(&header);
     s.push_str(&row(&r.overall));
-    s.push_str("\n(angles in degrees, xy in pixels, latency in ms per frame; pose = type and face right and angle within 2 deg; FA = false accepts)\n");
+    s.push_str("\n(angles in degrees, xy in pixels, latency in ms per frame; pose = type and face right and angle within 2 deg; pick = accepted and pose right; top = pick over the parts nothing covers (visible fraction >= 0.98); cov.A = accepted parts that something covers; FA = false accepts)\n");
     if r.false_accept_details.is_empty() {
         s.push_str("no false accepts\n");
     } else {
@@ -328,7 +358,7 @@ mod tests {
         TruthRecord { image: "images/x.png".into(), condition: cond.into(), noise_sigma: 1.0, parts }
     }
     fn tp(t: &str, face: &str, a: f64, x: f64, y: f64) -> TruthPart {
-        TruthPart { type_name: t.into(), face: face.into(), angle_deg: a, x_px: x, y_px: y }
+        TruthPart { type_name: t.into(), face: face.into(), angle_deg: a, x_px: x, y_px: y, visible_fraction: 1.0 }
     }
 
     #[test]

@@ -371,6 +371,7 @@ fn median_run(mut runs: Vec<(f64, lfi_bridge::vision::FrameEstimate)>) -> (f64, 
         correlate: med(&|t| t.correlate, &runs),
         register: med(&|t| t.register, &runs),
         confidence: med(&|t| t.confidence, &runs),
+        clump: med(&|t| t.clump, &runs),
         total: 0.0,
     };
     runs.sort_by(|a, b| a.0.total_cmp(&b.0));

@@ -22,7 +22,18 @@ pub struct TruthPart {
     pub angle_deg: f64,
     pub x_px: f64,
     pub y_px: f64,
+    /// Fraction of the part's material that nothing lies on (1.0: whole, the default when a
+    /// truth file predates the field; below 1: partly covered by another part).
+    #[serde(default = "whole")]
+    pub visible_fraction: f64,
 }
+
+fn whole() -> f64 {
+    1.0
+}
+
+/// A part counts as uncovered (a robot may pick it) at or above this visible fraction.
+pub const UNCOVERED: f64 = 0.98;
 
 /// One image's estimate, as `estimate --json` prints it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

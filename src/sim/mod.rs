@@ -214,18 +214,21 @@ impl Simulator {
         let name = format!("s{index:05}_{condition}");
         let r4 = |v: f64| (v * 10000.0).round() / 10000.0;
         let r3 = |v: f64| (v * 1000.0).round() / 1000.0;
+        let visible = render::visible_fractions(self.cfg.width, self.cfg.height, &parts)?;
         let truth = TruthRecord {
             image: format!("images/{name}.png"),
             condition: condition.to_string(),
             noise_sigma: r3(light.noise_sigma),
             parts: parts
                 .iter()
-                .map(|(p, pl)| TruthPart {
+                .zip(&visible)
+                .map(|((p, pl), v)| TruthPart {
                     type_name: p.model.name.to_string(),
                     face: pl.face.as_str().to_string(),
                     angle_deg: r4(pl.angle_deg),
                     x_px: r3(pl.x),
                     y_px: r3(pl.y),
+                    visible_fraction: r4(*v),
                 })
                 .collect(),
         };

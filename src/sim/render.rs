@@ -361,3 +361,40 @@ pub fn render(
     let out: Vec<u8> = data.iter().map(|&v| (v + noise.sample(rng)).round().clamp(0.0, 255.0) as u8).collect();
     Ok(GrayImage { data: out, width, height })
 }
+
+/// Fraction of each part's material that no later-drawn part lies on (parts are drawn in order,
+/// each over the ones before it): the truth's `visible_fraction`.
+pub fn visible_fractions(width: usize, height: usize, parts: &[(&Prepared, Placement)]) -> opencv::Result<Vec<f64>> {
+    let masks: Vec<Mat> = parts
+        .iter()
+        .map(|(prep, pl)| {
+            let mut mask = Mat::new_rows_cols_with_default(height as i32, width as i32, core::CV_8UC1, Scalar::all(0.0))?;
+            for s in &prep.model.material {
+                fill(&mut mask, s, prep, pl, (0, 0), 255.0)?;
+            }
+            for s in &prep.model.holes {
+                fill(&mut mask, s, prep, pl, (0, 0), 0.0)?;
+            }
+            Ok(mask)
+        })
+        .collect::<opencv::Result<_>>()?;
+    let mut out = Vec::with_capacity(masks.len());
+    for (i, m) in masks.iter().enumerate() {
+        let own = m.data_bytes()?;
+        let above: Vec<&[u8]> = masks[i + 1..].iter().map(|o| o.data_bytes()).collect::<opencv::Result<_>>()?;
+        let (mut total, mut seen) = (0.0f64, 0.0f64);
+        for (k, &v) in own.iter().enumerate() {
+            if v == 0 {
+                continue;
+            }
+            let mut f = v as f64 / 255.0;
+            total += f;
+            for a in &above {
+                f *= 1.0 - a[k] as f64 / 255.0;
+            }
+            seen += f;
+        }
+        out.push(if total > 0.0 { seen / total } else { 1.0 });
+    }
+    Ok(out)
+}

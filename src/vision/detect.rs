@@ -48,9 +48,14 @@ pub struct Coarse {
     pub factor: usize,
     /// The decimated frame, unblurred (input of LSD).
     pub small: Mat,
+    /// The decimated frame blurred (sigma 1.5): edge evidence for verifying part hypotheses.
+    pub blurred: Mat,
     /// Canny edges of the decimated frame (input of the fast line detector).
     pub edges: Mat,
     pub blobs: Vec<Blob>,
+    /// Separate pieces of material too small to be any part (bolts, washers, chips): at least
+    /// [`DetectParams::min_debris_area`], below `min_area`.
+    pub debris: usize,
 }
 
 /// Parameters of the coarse stage.
@@ -63,6 +68,8 @@ pub struct DetectParams {
     pub closing: i32,
     /// Regions enclosing less than this many frame pixels are fragments, not parts.
     pub min_area: f64,
+    /// Fragments enclosing at least this many frame pixels count as debris.
+    pub min_debris_area: f64,
 }
 
 /// The factor actually used: the requested one, reduced for small frames so that the decimated
@@ -145,10 +152,13 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
     imgproc::find_contours(&dilated, &mut contours, imgproc::RETR_EXTERNAL, imgproc::CHAIN_APPROX_NONE, Point::new(0, 0))?;
 
     let min_coarse_area = p.min_area / (f * f) as f64;
+    let min_coarse_debris = p.min_debris_area / (f * f) as f64;
     let mut blobs = Vec::new();
+    let mut debris = 0;
     for c in contours.iter() {
         let area = imgproc::contour_area(&c, false)?;
         if area < min_coarse_area {
+            debris += (area >= min_coarse_debris) as usize;
             continue;
         }
         let r = imgproc::bounding_rect(&c)?;
@@ -190,5 +200,5 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
         }
         blobs.push(Blob { outline, area: a.abs(), touches_border, coarse_rect: r, mask, mask_origin: Point::new(r.x - m, r.y - m) });
     }
-    Ok(Coarse { factor: f, small, edges, blobs })
+    Ok(Coarse { factor: f, small, blurred, edges, blobs, debris })
 }

@@ -14,6 +14,7 @@
 //! 6. Confidence (adaptive tolerance over the line features) and the accept/reject decision.
 
 pub mod boundary;
+pub mod clump;
 pub mod correlate;
 pub mod detect;
 pub mod frame;
@@ -87,10 +88,14 @@ pub enum Reason {
     WrongType,
     FrameError,
     AtBorder,
+    /// Another part lies partly on this one: grasping it would drag the one on top.
+    Covered,
+    /// The gripper's keep-out footprint around the part holds other material.
+    NoClearance,
 }
 
 impl Reason {
-    pub const ALL: [Reason; 9] = [
+    pub const ALL: [Reason; 11] = [
         Reason::Ok,
         Reason::NoPart,
         Reason::UnknownType,
@@ -100,6 +105,8 @@ impl Reason {
         Reason::WrongType,
         Reason::FrameError,
         Reason::AtBorder,
+        Reason::Covered,
+        Reason::NoClearance,
     ];
     pub fn code(self) -> u16 {
         self as u16
@@ -115,6 +122,8 @@ impl Reason {
             Reason::WrongType => "wrong type",
             Reason::FrameError => "frame error",
             Reason::AtBorder => "at the image border",
+            Reason::Covered => "covered",
+            Reason::NoClearance => "no clearance",
         }
     }
 }
@@ -165,6 +174,12 @@ pub struct Params {
     pub scale_range: (f64, f64),
     /// A region larger than this multiple of the largest template's area is several parts.
     pub touching_area_ratio: f64,
+    /// Separate material of at least this fraction of the smallest template's area (and below
+    /// the minimum part area) counts as debris.
+    pub debris_fraction: f64,
+    /// Least fraction of a template's outline the image must explain for a part found in a
+    /// region of several parts to count as whole (the rest is contact with its neighbour).
+    pub min_support: f64,
     /// Confidence: lambda = lambda0 (1 - alpha noise).
     pub lambda0: f64,
     pub alpha: f64,
@@ -193,6 +208,8 @@ impl Default for Params {
             max_foreign: 0.06,
             scale_range: (0.85, 1.18),
             touching_area_ratio: 1.3,
+            debris_fraction: 0.01,
+            min_support: 0.93,
             lambda0: 25.0,
             alpha: 0.5,
             accept_threshold: 0.5,
@@ -201,8 +218,9 @@ impl Default for Params {
 }
 
 impl Params {
-    pub(crate) fn detect_params(&self, min_area: f64) -> DetectParams {
+    pub(crate) fn detect_params(&self, min_area: f64, min_debris_area: f64) -> DetectParams {
         DetectParams {
+            min_debris_area,
             factor: self.coarse_factor,
             blur_sigma: self.blur_sigma,
             canny_low_ratio: self.canny_low_ratio,
@@ -225,6 +243,8 @@ pub struct Timings {
     pub correlate: f64,
     pub register: f64,
     pub confidence: f64,
+    /// Regions of several parts: voting, verification, overlap order.
+    pub clump: f64,
     pub total: f64,
 }
 
@@ -262,6 +282,9 @@ pub struct PartEstimate {
 #[derive(Debug, Clone)]
 pub struct FrameEstimate {
     pub parts: Vec<PartEstimate>,
+    /// Pieces of material in the frame too small or too unlike any part to be one (bolts,
+    /// washers, chips): never part results, counted so that a line can blow them off.
+    pub debris: usize,
     /// Robust standard deviation of the background's pixel noise, gray levels.
     pub noise_sigma: f64,
     pub timings: Timings,
@@ -282,6 +305,7 @@ pub struct Estimator {
     lib: Library,
     params: Params,
     min_area: f64,
+    min_debris_area: f64,
     max_template_area: f64,
 }
 
@@ -313,7 +337,8 @@ impl Estimator {
         let min_radius = templates.iter().map(|t| t.rms_radius()).fold(f64::INFINITY, f64::min);
         let mut params = params;
         params.coarse_factor = params.coarse_factor.min(((min_radius / 45.0) as usize).max(1));
-        Ok(Self { lib: Library::new(templates, params.signal_bins), params, min_area, max_template_area: largest })
+        let min_debris_area = params.debris_fraction * smallest;
+        Ok(Self { lib: Library::new(templates, params.signal_bins), params, min_area, min_debris_area, max_template_area: largest })
     }
 
     pub fn params(&self) -> &Params {
@@ -330,16 +355,182 @@ impl Estimator {
         // Pixel noise from the whole frame: the median of pixel differences is not moved by the
         // few percent of pixels on part edges.
         let noise = boundary::noise_sigma(frame, &[]);
-        let coarse = detect::detect(frame, &self.params.detect_params(self.min_area))?;
+        let coarse = detect::detect(frame, &self.params.detect_params(self.min_area, self.min_debris_area))?;
         tm.detect = ms(t0);
 
         let mut parts = Vec::with_capacity(coarse.blobs.len());
+        let mut debris = coarse.debris;
         for blob in &coarse.blobs {
-            parts.push(self.estimate_part(frame, &coarse, blob, noise, &mut tm)?);
+            let (est, contrast) = self.estimate_part(frame, &coarse, blob, noise, &mut tm)?;
+            // A region one template cannot explain may hold several parts, or one part whose
+            // silhouette came out wrong: look for each part in it by its own evidence.
+            if matches!(est.reason, Reason::Touching | Reason::UnknownType) {
+                let t = Instant::now();
+                let found = self.estimate_region(frame, &coarse, blob, &est, noise, contrast)?;
+                tm.clump += ms(t);
+                if let Some((found, small)) = found {
+                    parts.extend(found);
+                    debris += small;
+                    continue;
+                }
+            }
+            parts.push(est);
         }
         parts.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
         tm.total = ms(t0);
-        Ok(FrameEstimate { parts, noise_sigma: noise, timings: tm })
+        Ok(FrameEstimate { parts, debris, noise_sigma: noise, timings: tm })
+    }
+
+    /// Whether the rival template fits the region's outline nearly as well as the best at the
+    /// best fit's own residual (the single-part path's test, on the stretch of outline the
+    /// region shows): noise widens the tolerance for finding a part, but must not blur a small
+    /// face difference into a tie.
+    fn rivals(
+        &self,
+        outline: &[Pt],
+        best: usize,
+        reg: &register::Registration,
+        tol: f64,
+        rival: usize,
+        rreg: &register::Registration,
+    ) -> bool {
+        let p = &self.params;
+        let tight = (4.0 * reg.rms).clamp(p.fit_tolerance, tol);
+        let b = register::measure(outline, &self.lib.entries[best].index, reg.pose, tight, 1).coverage;
+        let r = register::measure(outline, &self.lib.entries[rival].index, rreg.pose, tight, 1).coverage;
+        r >= b - p.ambiguity_margin
+    }
+
+    /// The parts of a region the single-part path rejected as touching or unknown, each found
+    /// and verified on its own (see [`clump`]); None when no template explains any of it, so
+    /// that the single-part verdict stands. Also returns the debris found in the region.
+    fn estimate_region(
+        &self,
+        frame: GrayView<'_>,
+        coarse: &detect::Coarse,
+        blob: &detect::Blob,
+        whole: &PartEstimate,
+        noise: f64,
+        contrast: f64,
+    ) -> Result<Option<(Vec<PartEstimate>, usize)>, FrameError> {
+        let p = &self.params;
+        let _ = frame;
+        let region = clump::Region { coarse, blob, outline: &whole.outline, noise, contrast };
+        let tolerance = |ei: usize| p.fit_tolerance + p.fit_tolerance_rel * self.lib.entries[ei].template.rms_radius() + noise / 15.0;
+        let ex = clump::explain(&self.lib, &region, tolerance, self.min_debris_area);
+        if ex.parts.is_empty() {
+            return Ok(None);
+        }
+        let segments = if whole.segments.is_empty() {
+            let (lo, hi) = bounds(&whole.outline);
+            let smallest = self.lib.entries.iter().map(|e| e.diag).fold(f64::INFINITY, f64::min);
+            lines::part_segments(
+                p.line_detector,
+                &coarse.small,
+                &coarse.edges,
+                coarse.factor,
+                blob,
+                p.min_segment_fraction * smallest.min((hi - lo).norm()),
+            )?
+        } else {
+            whole.segments.clone()
+        };
+        let noise_level = if contrast > 0.0 { (noise / contrast).clamp(0.0, 1.0) } else { 1.0 };
+        let lambda = p.lambda0 * (1.0 - p.alpha * noise_level);
+        let mut out = Vec::with_capacity(ex.parts.len() + ex.leftover.len());
+        for f in &ex.parts {
+            let e = &self.lib.entries[f.entry];
+            let tpl = &e.template;
+            let pose = f.reg.pose;
+            let origin = pose.apply(tpl.origin);
+            let mut est = PartEstimate {
+                type_name: Some(tpl.type_name.clone()),
+                type_id: tpl.type_id,
+                face: Some(tpl.face),
+                angle_deg: pose.angle_deg(),
+                x: origin.x,
+                y: origin.y,
+                scale: pose.scale,
+                confidence: 0.0,
+                accepted: false,
+                reason: Reason::Touching,
+                detail: String::new(),
+                fit: f.support,
+                matched: Some((f.entry, pose)),
+                outline: tpl.outline.iter().map(|&q| pose.apply(q)).collect(),
+                axis: None,
+                segments: Vec::new(),
+                descriptor: Vec::new(),
+            };
+            let diag = e.diag * pose.scale;
+            est.confidence = confidence(&tpl.segments, &segments, &pose, diag, lambda);
+            est.detail = format!(
+                "found in a region of several parts: {} {} outline explained {:.3} (need {:.2}), on the region's outline {:.3}, rms {:.2} px, scale {:.3}, confidence {:.3}",
+                tpl.type_name, tpl.face, f.support, p.min_support, f.reg.coverage, f.reg.rms, pose.scale, est.confidence
+            );
+            if pose.scale < p.scale_range.0 || pose.scale > p.scale_range.1 {
+                est.type_name = None;
+                est.type_id = 0;
+                est.face = None;
+                est.reason = Reason::UnknownType;
+                est.detail = format!("scale {:.3} outside {:.2}..{:.2}; {}", pose.scale, p.scale_range.0, p.scale_range.1, est.detail);
+            } else if let Some(k) = f.under {
+                let o = &self.lib.entries[ex.parts[k].entry].template;
+                est.reason = Reason::Covered;
+                est.detail = format!("{} {} lies on it; {}", o.type_name, o.face, est.detail);
+            } else if f.order_unclear {
+                est.reason = Reason::Touching;
+                est.detail = format!("it overlaps another part and the image does not tell which lies on top; {}", est.detail);
+            } else if f.support < p.min_support {
+                est.reason = Reason::Touching;
+                est.detail = format!("part of its outline is not seen (something unknown lies on or against it); {}", est.detail);
+            } else if let Some((ri, rreg, rsupport)) = f.rival
+                && rsupport >= f.support - p.ambiguity_margin
+                && self.rivals(&whole.outline, f.entry, &f.reg, f.tolerance, ri, &rreg)
+                && est.confidence - confidence(&self.lib.entries[ri].template.segments, &segments, &rreg.pose, diag, lambda)
+                    < p.confidence_margin
+            {
+                let o = &self.lib.entries[ri].template;
+                est.reason = Reason::Ambiguous;
+                est.detail = format!(
+                    "{} {} explains it almost as well ({rsupport:.3}) and its line features are not clearly worse; {}",
+                    o.type_name, o.face, est.detail
+                );
+            } else if est.confidence < p.accept_threshold {
+                est.reason = Reason::LowConfidence;
+            } else {
+                est.accepted = true;
+                est.reason = Reason::Ok;
+            }
+            out.push(est);
+        }
+        let mut debris = 0;
+        for &(area, c) in &ex.leftover {
+            if area < self.min_area {
+                debris += 1;
+                continue;
+            }
+            out.push(PartEstimate {
+                type_name: None,
+                type_id: 0,
+                face: None,
+                angle_deg: 0.0,
+                x: c.x,
+                y: c.y,
+                scale: 1.0,
+                confidence: 0.0,
+                accepted: false,
+                reason: Reason::Touching,
+                detail: format!("{area:.0} px^2 of material beside the parts found here that no enrolled part explains"),
+                fit: 0.0,
+                matched: None,
+                outline: Vec::new(),
+                axis: None,
+                segments: Vec::new(),
+                descriptor: Vec::new(),
+            });
+        }
+        Ok(Some((out, debris)))
     }
 
     fn estimate_part(
@@ -349,7 +540,7 @@ impl Estimator {
         blob: &detect::Blob,
         noise: f64,
         tm: &mut Timings,
-    ) -> Result<PartEstimate, FrameError> {
+    ) -> Result<(PartEstimate, f64), FrameError> {
         let p = &self.params;
         let (_, c0) = area_centroid(&blob.outline);
         let mut est = PartEstimate {
@@ -373,6 +564,7 @@ impl Estimator {
         };
         let t = Instant::now();
         let refined = boundary::refine(frame, &blob.outline, noise, &p.refine_params(coarse.factor));
+        let contrast = refined.contrast;
         let outline = refined.outline;
         let (area, centroid) = area_centroid(&outline);
         let area = area.abs();
@@ -387,13 +579,13 @@ impl Estimator {
         if lo.x < edge || lo.y < edge || hi.x > frame.width() as f64 - 1.0 - edge || hi.y > frame.height() as f64 - 1.0 - edge {
             est.reason = Reason::AtBorder;
             est.detail = format!("outline reaches the frame border (x {:.1}..{:.1}, y {:.1}..{:.1})", lo.x, hi.x, lo.y, hi.y);
-            return Ok(est);
+            return Ok((est, contrast));
         }
         let max_scale2 = p.scale_range.1 * p.scale_range.1;
         if area > p.touching_area_ratio * self.max_template_area * max_scale2 {
             est.reason = Reason::Touching;
             est.detail = format!("region of {area:.0} px^2 is larger than any enrolled part could be");
-            return Ok(est);
+            return Ok((est, contrast));
         }
 
         let t = Instant::now();
@@ -490,12 +682,12 @@ impl Estimator {
             let nominal = self.lib.entries[aligned[0].0].template.area;
             est.reason = if area > p.touching_area_ratio * nominal { Reason::Touching } else { Reason::UnknownType };
             est.detail = format!("no template fits (need {:.2}); {}", p.min_fit, est.detail);
-            return Ok(est);
+            return Ok((est, contrast));
         }
         if pose.scale < p.scale_range.0 || pose.scale > p.scale_range.1 {
             est.reason = Reason::UnknownType;
             est.detail = format!("scale {:.3} outside {:.2}..{:.2}; {}", pose.scale, p.scale_range.0, p.scale_range.1, est.detail);
-            return Ok(est);
+            return Ok((est, contrast));
         }
         // From here on the part has a type, face and pose, accepted or not.
         est.type_name = Some(tpl.type_name.clone());
@@ -514,7 +706,7 @@ impl Estimator {
                 p.max_foreign,
                 est.detail
             );
-            return Ok(est);
+            return Ok((est, contrast));
         }
 
         let t = Instant::now();
@@ -558,16 +750,16 @@ impl Estimator {
                 est.reason = Reason::Ambiguous;
                 est.detail =
                     format!("{} {} fits almost as well and its line features are not clearly worse; {}", o.type_name, o.face, est.detail);
-                return Ok(est);
+                return Ok((est, contrast));
             }
         }
         if est.confidence < p.accept_threshold {
             est.reason = Reason::LowConfidence;
-            return Ok(est);
+            return Ok((est, contrast));
         }
         est.accepted = true;
         est.reason = Reason::Ok;
-        Ok(est)
+        Ok((est, contrast))
     }
 }
 
@@ -630,7 +822,7 @@ mod tests {
     #[test]
     fn reasons_carry_the_register_codes() {
         let codes: Vec<u16> = Reason::ALL.iter().map(|r| r.code()).collect();
-        assert_eq!(codes, (0..9).collect::<Vec<u16>>());
+        assert_eq!(codes, (0..11).collect::<Vec<u16>>());
         assert_eq!(Reason::AtBorder.as_str(), "at the image border");
         assert_eq!("down".parse::<Face>().unwrap(), Face::Down);
         assert!("side".parse::<Face>().is_err());

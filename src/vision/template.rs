@@ -2,8 +2,9 @@
 //! correlates against.
 
 use super::boundary;
+use super::clump::ShapeModel;
 use super::correlate::{Correlator, Spectrum};
-use super::detect::{self, DetectParams};
+use super::detect;
 use super::frame::{FrameError, GrayView};
 use super::geometry::{Pt, area_centroid, bounds};
 use super::lines::{self, Segment};
@@ -66,7 +67,7 @@ impl Template {
             return Err(TemplateError::ReservedId(0));
         }
         let min_area = 0.01 * (image.width() * image.height()) as f64;
-        let dp = DetectParams { min_area, ..params.detect_params(min_area) };
+        let dp = params.detect_params(min_area, min_area);
         let noise = boundary::noise_sigma(image, &[]);
         let coarse = detect::detect(image, &dp)?;
         let blob = coarse.blobs.iter().max_by(|a, b| a.area.total_cmp(&b.area)).ok_or(TemplateError::NoPart { min_area })?;
@@ -114,6 +115,8 @@ pub struct Compiled {
     pub spectrum: Spectrum,
     pub index: OutlineIndex,
     pub diag: f64,
+    /// Voting and verification points for regions holding several parts.
+    pub shape: ShapeModel,
 }
 
 /// All enrolled templates, compiled once when the estimator is built.
@@ -136,6 +139,7 @@ impl Library {
                     spectrum: correlator.spectrum(&signal),
                     index: OutlineIndex::new(&t.outline),
                     diag: (hi - lo).norm(),
+                    shape: ShapeModel::new(&t.outline, t.centroid),
                 }
             })
             .collect();

@@ -1,0 +1,551 @@
+//! Stage 5b: regions the silhouette alone cannot explain: touching and overlapping parts, and a
+//! single part whose outline the coarse stage got partly wrong (thin arms closed over, glare).
+//!
+//! A region's outline is the union of pieces of its parts' outlines. Each template votes for its
+//! own poses from those pieces (a generalised Hough transform: a pair of outline points, one on
+//! the region and one on the template, with their normals, fixes the rotation and the centroid),
+//! so a part is found from the part of its outline that shows, wherever the rest is. Each
+//! hypothesis is then refined by the same point-to-line ICP as a separate part and *verified
+//! against the image*: every point of the template's outline at that pose must be explained,
+//! either by the region's outline or by an edge across the outline's normal inside the region
+//! (where a part lies on another, or where the coarse outline bridged a gap). Which of two
+//! overlapping parts lies on top follows from the same evidence: the upper part's outline runs on
+//! across the lower one, the lower one's outline disappears under the upper.
+//!
+//! The decisions (accept, `covered`, `touching/overlapping`) are the estimator's; this module
+//! only finds and measures.
+
+use opencv::core::{self, Mat, Point, Scalar, Vector};
+use opencv::imgproc;
+use opencv::prelude::*;
+
+use super::detect::{Blob, Coarse};
+use super::geometry::{
+    Pt, Similarity, angle_diff_deg, area_centroid, bounds, outward_normals, resample_closed, rotate_display, smooth_closed,
+};
+use super::register::{self, OutlineIndex, Registration};
+use super::template::Library;
+
+/// Spacing of the voting points on both outlines, frame pixels: fine enough that a part's
+/// visible stretch casts dozens of votes, coarse enough that a pair of parts costs about 0.2 M
+/// votes per template.
+const VOTE_SPACING: f64 = 8.0;
+/// Rotation bins of the vote accumulator (10 degrees). Each vote rotates by its own pair's angle
+/// (to [`FINE`] steps), so the centroid votes of a true pose agree whatever the bin width: the
+/// bins only keep parts at different angles apart, and a small accumulator stays in cache.
+const ANGLE_BINS: usize = 36;
+/// Angle steps of the normals and of the rotation table (half a degree).
+const FINE: usize = 720;
+/// Centroid cell of the vote accumulator, frame pixels.
+const CELL: f64 = 12.0;
+/// Points either side over which the outline's turn is measured (about 24 px).
+const TURN_SPAN: usize = 3;
+/// Largest difference of turn (in [`FINE`] steps: 15 degrees) between corresponding points.
+const TURN_TOLERANCE: i32 = 30;
+/// Spacing of the verification points on a template's outline, frame pixels.
+const VERIFY_SPACING: f64 = 4.0;
+/// Poses per template kept from the vote.
+const PEAKS_PER_TEMPLATE: usize = 3;
+/// Hypotheses refined and verified per region, best votes first.
+const MAX_HYPOTHESES: usize = 10;
+
+/// A template's outline prepared for voting and verification.
+#[derive(Debug, Clone)]
+pub struct ShapeModel {
+    /// Voting points: offset from the point to the centroid, the outward normal's angle in
+    /// [`FINE`] steps, and the outline's turn there; sorted by turn.
+    vote: Vec<(Pt, usize, i32)>,
+    /// Verification points on the outline and their outward unit normals (template pixels).
+    verify: Vec<(Pt, Pt)>,
+}
+
+impl ShapeModel {
+    pub fn new(outline: &[Pt], centroid: Pt) -> Self {
+        let mut vote: Vec<(Pt, usize, i32)> = oriented_points(outline).into_iter().map(|(p, a, t)| (centroid - p, a, t)).collect();
+        vote.sort_by_key(|v| v.2);
+        let fp = resample_closed(outline, VERIFY_SPACING);
+        let fs = smooth_closed(&fp, 2);
+        let fnm = outward_normals(&fs, 2);
+        let verify = fp.iter().copied().zip(fnm).collect();
+        Self { vote, verify }
+    }
+}
+
+/// What the region offers as evidence.
+pub struct Region<'a> {
+    pub coarse: &'a Coarse,
+    pub blob: &'a Blob,
+    /// The region's refined outline, frame pixels.
+    pub outline: &'a [Pt],
+    /// Frame noise, gray levels.
+    pub noise: f64,
+    /// Part-to-belt contrast along the region's outline, gray levels.
+    pub contrast: f64,
+}
+
+/// A part found in a region.
+#[derive(Debug, Clone)]
+pub struct Found {
+    pub entry: usize,
+    pub reg: Registration,
+    pub tolerance: f64,
+    /// Length fraction of the template's outline explained by the image at the pose.
+    pub support: f64,
+    /// Index (into [`Explained::parts`]) of a part found lying on this one.
+    pub under: Option<usize>,
+    /// Overlaps another part found here, and the image cannot tell which lies on top.
+    pub order_unclear: bool,
+    /// Another template explaining the same material nearly as well: (entry, its registration,
+    /// support).
+    pub rival: Option<(usize, Registration, f64)>,
+    /// Verification points.
+    points: Vec<Probe>,
+}
+
+/// Everything found in a region.
+#[derive(Debug, Clone, Default)]
+pub struct Explained {
+    pub parts: Vec<Found>,
+    /// Material of the region that no found part explains: (area in frame pixels, centroid).
+    pub leftover: Vec<(f64, Pt)>,
+}
+
+/// Least support for a hypothesis to stand for a physical part at all.
+pub const MIN_SUPPORT: f64 = 0.7;
+
+/// Finds and verifies the parts in a region. `tolerance(entry)` is the outline tolerance of that
+/// template at this frame's noise, as the single-part path uses it.
+pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> f64, min_leftover: f64) -> Explained {
+    let scene = oriented_points(region.outline);
+    if scene.len() < 8 {
+        return Explained::default();
+    }
+    let (lo, hi) = bounds(region.outline);
+    let mut hyps: Vec<(usize, Similarity, u32)> = Vec::new();
+    for (ei, e) in lib.entries.iter().enumerate() {
+        for (pose, votes) in vote(&e.shape, e.template.centroid, &scene, lo, hi) {
+            hyps.push((ei, pose, votes));
+        }
+    }
+    // Stronger evidence first: votes as a fraction of the template's voting points.
+    hyps.sort_by(|a, b| {
+        let fa = a.2 as f64 / lib.entries[a.0].shape.vote.len() as f64;
+        let fb = b.2 as f64 / lib.entries[b.0].shape.vote.len() as f64;
+        fb.total_cmp(&fa)
+    });
+    hyps.truncate(MAX_HYPOTHESES);
+
+    let ext = OutlineIndex::new(region.outline);
+    let edge = EdgeTest::new(region);
+    let mut found: Vec<Found> = Vec::new();
+    for (ei, init, _) in hyps {
+        let e = &lib.entries[ei];
+        let tol = tolerance(ei);
+        // Cheap looks first: most peaks are another part's outline voting by chance, or the
+        // same part again, and end here before any registration.
+        let duplicate = found.iter().any(|f| {
+            f.entry == ei && (f.reg.pose.to - init.to).norm() < 20.0 && angle_diff_deg(f.reg.pose.angle_deg(), init.angle_deg()).abs() < 4.0
+        });
+        if duplicate || verify(&e.shape, &init, &ext, &edge, 2.0 * tol, 4).0 < MIN_SUPPORT - 0.2 {
+            continue;
+        }
+        let rough = register::register(region.outline, &e.index, init, tol, 4);
+        if verify(&e.shape, &rough.pose, &ext, &edge, tol, 3).0 < MIN_SUPPORT - 0.1 {
+            continue;
+        }
+        let reg = register::register(region.outline, &e.index, rough.pose, tol, 2);
+        let (support, points) = verify(&e.shape, &reg.pose, &ext, &edge, tol, 1);
+        if support < MIN_SUPPORT {
+            continue;
+        }
+        found.push(Found { entry: ei, reg, tolerance: tol, support, under: None, order_unclear: false, rival: None, points });
+    }
+    // One physical part, several explanations (the same template from two peaks, another face or
+    // type): the best stays, the runner-up of a different type or face is its rival.
+    found.sort_by(|a, b| b.support.total_cmp(&a.support));
+    let f = region.coarse.factor;
+    let masks: Vec<Mat> = found.iter().map(|x| mask_of(lib, x, region.blob, f).unwrap_or_default()).collect();
+    let areas: Vec<f64> = masks.iter().map(|m| core::count_non_zero(m).unwrap_or(0) as f64).collect();
+    let mut keep: Vec<usize> = Vec::new();
+    for i in 0..found.len() {
+        let same = keep.iter().copied().find(|&k| {
+            let inter = overlap(&masks[i], &masks[k]);
+            inter > 0.5 * areas[i].min(areas[k]).max(1.0)
+        });
+        match same {
+            None => keep.push(i),
+            Some(k) => {
+                let (a, b) = (&lib.entries[found[k].entry].template, &lib.entries[found[i].entry].template);
+                if found[k].rival.is_none() && (a.type_name != b.type_name || a.face != b.face) {
+                    found[k].rival = Some((found[i].entry, found[i].reg, found[i].support));
+                }
+            }
+        }
+    }
+    // Which of two overlapping parts is on top: the one whose outline shows inside the other
+    // (away from the other's own outline: inside its mask eroded by a decimated pixel), where
+    // the lower one's outline runs under the upper's surface and shows nothing.
+    let eroded: Vec<Mat> = masks.iter().map(|m| erode1(m).unwrap_or_default()).collect();
+    let inside =
+        |pts: &[Probe], mask: &Mat| -> Vec<usize> { (0..pts.len()).filter(|&j| at_mask(mask, region.blob, pts[j].at, f)).collect() };
+    let strength = |pts: &[Probe], idx: &[usize]| -> f64 {
+        if idx.is_empty() { 0.0 } else { idx.iter().map(|&j| pts[j].across).sum::<f64>() / idx.len() as f64 }
+    };
+    let mut over: Vec<Vec<usize>> = vec![Vec::new(); found.len()];
+    for (a, &i) in keep.iter().enumerate() {
+        for &k in &keep[a + 1..] {
+            let (ii, kk) = (inside(&found[i].points, &eroded[k]), inside(&found[k].points, &eroded[i]));
+            if ii.len() < 4 && kk.len() < 4 {
+                continue; // touching at most
+            }
+            let (si, sk) = (strength(&found[i].points, &ii), strength(&found[k].points, &kk));
+            if si > sk + edge.margin {
+                found[k].under.get_or_insert(i);
+                over[i].extend(ii);
+            } else if sk > si + edge.margin {
+                found[i].under.get_or_insert(k);
+                over[k].extend(kk);
+            } else {
+                found[i].order_unclear = true;
+                found[k].order_unclear = true;
+            }
+        }
+    }
+    // An upper part's outline across a lower part shows as well as that part's surface allows:
+    // decided on top, those points count as seen.
+    for &i in &keep {
+        let pts = &mut found[i].points;
+        for &j in &over[i] {
+            pts[j].seen = true;
+        }
+        found[i].support = pts.iter().filter(|p| p.seen).count() as f64 / pts.len().max(1) as f64;
+    }
+    // Material no part explains.
+    let leftover = leftover(region, &keep.iter().map(|&i| &masks[i]).collect::<Vec<_>>(), min_leftover).unwrap_or_default();
+    let index_of: Vec<Option<usize>> = (0..found.len()).map(|i| keep.iter().position(|&k| k == i)).collect();
+    let parts = keep
+        .iter()
+        .map(|&i| {
+            let mut f = found[i].clone();
+            f.under = f.under.and_then(|k| index_of[k]);
+            f
+        })
+        .collect();
+    Explained { parts, leftover }
+}
+
+/// A direction's display angle in [`FINE`] steps.
+fn fine_angle(n: Pt) -> usize {
+    ((n.display_angle() / std::f64::consts::TAU * FINE as f64).round() as i64).rem_euclid(FINE as i64) as usize
+}
+
+/// Outline points for voting: position, outward normal angle and turn (the normal's change over
+/// [`TURN_SPAN`] points either side), both in [`FINE`] steps.
+fn oriented_points(outline: &[Pt]) -> Vec<(Pt, usize, i32)> {
+    let p = resample_closed(outline, VOTE_SPACING);
+    let n = p.len();
+    if n < 2 * TURN_SPAN + 2 {
+        return Vec::new();
+    }
+    let s = smooth_closed(&p, 1);
+    let a: Vec<usize> = outward_normals(&s, 1).into_iter().map(fine_angle).collect();
+    (0..n)
+        .map(|i| {
+            let (before, after) = (a[(i + n - TURN_SPAN) % n] as i32, a[(i + TURN_SPAN) % n] as i32);
+            let half = FINE as i32 / 2;
+            let turn = (after - before + FINE as i32 + half).rem_euclid(FINE as i32) - half;
+            (s[i], a[i], turn)
+        })
+        .collect()
+}
+
+/// Generalised Hough vote of one template over the region: its best few poses (scale 1) and
+/// their votes (3 x 3 x 3 cells around the peak).
+fn vote(model: &ShapeModel, centroid: Pt, scene: &[(Pt, usize, i32)], lo: Pt, hi: Pt) -> Vec<(Similarity, u32)> {
+    // A part's centroid lies within its bounding box, which lies within the region's.
+    let nx = (((hi.x - lo.x) / CELL).ceil() as usize + 1).max(1);
+    let ny = (((hi.y - lo.y) / CELL).ceil() as usize + 1).max(1);
+    let plane = nx * ny;
+    let mut acc = vec![0u16; ANGLE_BINS * plane];
+    let mut turns = vec![0u32; ANGLE_BINS * plane];
+    let fine_step = std::f64::consts::TAU / FINE as f64;
+    let lut: Vec<(f64, f64)> = (0..FINE).map(|b| (b as f64 * fine_step).sin_cos()).collect();
+    let per_bin = FINE / ANGLE_BINS;
+    // Each bin's votes, and the sum of their fine angles relative to the bin's start, so that a
+    // peak's angle is the mean of its votes rather than the bin's centre.
+    for &(p, beta, turn) in scene {
+        // Only points where the outlines bend alike can correspond: a fraction of the pairs.
+        let from = model.vote.partition_point(|v| v.2 < turn - TURN_TOLERANCE);
+        let to = model.vote.partition_point(|v| v.2 <= turn + TURN_TOLERANCE);
+        for &(d, alpha, _) in &model.vote[from..to] {
+            let fine = (beta + FINE - alpha) % FINE;
+            let b = fine / per_bin;
+            let (s, c) = lut[fine];
+            // rotate_display(d, theta) with the bin's angle.
+            let cx = p.x + c * d.x + s * d.y;
+            let cy = p.y - s * d.x + c * d.y;
+            let ix = ((cx - lo.x) / CELL).floor();
+            let iy = ((cy - lo.y) / CELL).floor();
+            if ix < 0.0 || iy < 0.0 || ix >= nx as f64 || iy >= ny as f64 {
+                continue;
+            }
+            let k = b * plane + iy as usize * nx + ix as usize;
+            acc[k] = acc[k].saturating_add(1);
+            turns[k] += (fine - b * per_bin) as u32;
+        }
+    }
+    // Candidate cells: the raw count is at least a twentieth of the model's points.
+    let floor = (model.vote.len() / 20).max(3) as u16;
+    let box_sum = |b: usize, y: usize, x: usize| -> u32 {
+        let mut s = 0u32;
+        for db in [ANGLE_BINS - 1, 0, 1] {
+            let bb = (b + db) % ANGLE_BINS;
+            for yy in y.saturating_sub(1)..=(y + 1).min(ny - 1) {
+                for xx in x.saturating_sub(1)..=(x + 1).min(nx - 1) {
+                    s += acc[bb * plane + yy * nx + xx] as u32;
+                }
+            }
+        }
+        s
+    };
+    let mut cands: Vec<(u32, usize, usize, usize)> = Vec::new();
+    for (k, &v) in acc.iter().enumerate() {
+        if v >= floor {
+            let b = k / plane;
+            let y = (k % plane) / nx;
+            let x = k % nx;
+            cands.push((box_sum(b, y, x), b, y, x));
+        }
+    }
+    cands.sort_by(|a, b| b.0.cmp(&a.0));
+    let mut peaks: Vec<(u32, usize, usize, usize)> = Vec::new();
+    for c in cands {
+        let near = peaks.iter().any(|p| {
+            let db = (c.1 as isize - p.1 as isize).rem_euclid(ANGLE_BINS as isize);
+            let db = db.min(ANGLE_BINS as isize - db);
+            db <= 4 && c.2.abs_diff(p.2) <= 4 && c.3.abs_diff(p.3) <= 4
+        });
+        if !near {
+            peaks.push(c);
+            if peaks.len() == PEAKS_PER_TEMPLATE {
+                break;
+            }
+        }
+    }
+    peaks
+        .into_iter()
+        .map(|(v, b, y, x)| {
+            // The mean of the votes around the peak, for a start within a few pixels and about a
+            // degree: centroid from the cells, angle from the votes' own angles.
+            let (mut sx, mut sy, mut sa, mut sw) = (0.0, 0.0, 0.0, 0.0);
+            for db in [-1isize, 0, 1] {
+                let bb = (b as isize + db).rem_euclid(ANGLE_BINS as isize) as usize;
+                for yy in y.saturating_sub(1)..=(y + 1).min(ny - 1) {
+                    for xx in x.saturating_sub(1)..=(x + 1).min(nx - 1) {
+                        let k = bb * plane + yy * nx + xx;
+                        let w = acc[k] as f64;
+                        sx += w * (xx as f64 + 0.5);
+                        sy += w * (yy as f64 + 0.5);
+                        sa += w * ((b as isize + db) * per_bin as isize) as f64 + turns[k] as f64;
+                        sw += w;
+                    }
+                }
+            }
+            let (cx, cy, a) = if sw > 0.0 { (sx / sw, sy / sw, sa / sw) } else { (x as f64 + 0.5, y as f64 + 0.5, (b * per_bin) as f64) };
+            let to = Pt::new(lo.x + cx * CELL, lo.y + cy * CELL);
+            (Similarity { from: centroid, to, angle_rad: a * fine_step, scale: 1.0 }, v)
+        })
+        .collect()
+}
+
+/// Edge evidence across a line, from the blurred decimated frame: the gray-level step across the
+/// normal, taken at the best of a few offsets along it (the pose is good to a pixel or two).
+struct EdgeTest<'a> {
+    img: &'a [u8],
+    width: usize,
+    height: usize,
+    factor: usize,
+    /// Least step (gray levels) that counts as an edge.
+    threshold: f64,
+    /// Least difference of mean steps that tells which of two outlines shows more.
+    margin: f64,
+}
+
+impl<'a> EdgeTest<'a> {
+    fn new(region: &'a Region<'_>) -> Self {
+        let f = region.coarse.factor as f64;
+        // Decimation averages about f/2 x f/2 pixels (bilinear of the middle 2 x 2 at f = 4) and the
+        // blur divides white noise by 2 sqrt(pi) sigma; a difference of two samples has sqrt 2 x.
+        let sigma_b = region.noise / (f / 2.0).max(1.0) / (2.0 * std::f64::consts::PI.sqrt() * 1.5);
+        let threshold = (0.25 * region.contrast).max(4.0 * std::f64::consts::SQRT_2 * sigma_b).max(4.0);
+        let m = &region.coarse.blurred;
+        let img = m.data_bytes().unwrap_or(&[]);
+        let (width, height) = if img.is_empty() { (0, 0) } else { (m.cols() as usize, m.rows() as usize) };
+        // Mean steps over dozens of points: a few noise sigmas of one step suffice.
+        let margin = (2.0 * std::f64::consts::SQRT_2 * sigma_b).max(0.03 * region.contrast).max(2.0);
+        Self { img, width, height, factor: region.coarse.factor, threshold, margin }
+    }
+
+    fn sample(&self, p: Pt) -> Option<f64> {
+        let f = self.factor as f64;
+        let u = (p.x - (f - 1.0) / 2.0) / f;
+        let v = (p.y - (f - 1.0) / 2.0) / f;
+        let (w, h) = (self.width, self.height);
+        if u < 0.0 || v < 0.0 || u >= w.saturating_sub(1) as f64 || v >= h.saturating_sub(1) as f64 {
+            return None;
+        }
+        let (x0, y0) = (u as usize, v as usize);
+        let (fx, fy) = (u - x0 as f64, v - y0 as f64);
+        let i = y0 * w + x0;
+        let g = |k: usize| self.img[k] as f64;
+        let top = g(i) * (1.0 - fx) + g(i + 1) * fx;
+        let bot = g(i + w) * (1.0 - fx) + g(i + w + 1) * fx;
+        Some(top * (1.0 - fy) + bot * fy)
+    }
+
+    /// The gray-level step across the normal `n` near `p` (frame pixels): the largest, within
+    /// a decimated pixel and a half along the normal, of the steps that run mostly across it
+    /// (gradient within about 27 degrees of the normal), so that the texture and features of a
+    /// neighbour's surface rarely count. 0 where none does.
+    fn across(&self, p: Pt, n: Pt) -> f64 {
+        let f = self.factor as f64;
+        let t = Pt::new(-n.y, n.x);
+        let mut best = 0.0f64;
+        for k in -3..=3 {
+            let c = p + n.scale(k as f64 * 0.5 * f);
+            let (Some(a), Some(b), Some(l), Some(r)) =
+                (self.sample(c - n.scale(f)), self.sample(c + n.scale(f)), self.sample(c - t.scale(f)), self.sample(c + t.scale(f)))
+            else {
+                continue;
+            };
+            let across = (a - b).abs();
+            if across >= 2.0 * (l - r).abs() {
+                best = best.max(across);
+            }
+        }
+        best
+    }
+}
+
+/// One verification point of a template's outline at a hypothesised pose.
+#[derive(Debug, Clone, Copy)]
+struct Probe {
+    /// Frame position.
+    at: Pt,
+    /// Explained: on the region's outline, or a clear edge across the outline there.
+    seen: bool,
+    /// Gray-level step across the outline there (see [`EdgeTest::across`]).
+    across: f64,
+}
+
+/// The template's outline at `pose`, point by point (every `stride`-th): explained by the
+/// region's outline, or by an edge in the image. Returns the explained fraction and the points.
+fn verify(model: &ShapeModel, pose: &Similarity, ext: &OutlineIndex, edge: &EdgeTest<'_>, tol: f64, stride: usize) -> (f64, Vec<Probe>) {
+    let mut pts = Vec::with_capacity(model.verify.len() / stride + 1);
+    for &(m, n) in model.verify.iter().step_by(stride) {
+        let at = pose.apply(m);
+        let nn = rotate_display(n, pose.angle_rad);
+        let on_region = ext.nearest(at, tol * pose.scale).is_some();
+        let across = edge.across(at, nn);
+        pts.push(Probe { at, seen: on_region || across >= edge.threshold, across });
+    }
+    (pts.iter().filter(|p| p.seen).count() as f64 / pts.len().max(1) as f64, pts)
+}
+
+/// The found part's filled outline at its pose, in the blob's mask coordinates.
+fn mask_of(lib: &Library, f: &Found, blob: &Blob, factor: usize) -> opencv::Result<Mat> {
+    let t = &lib.entries[f.entry].template;
+    let mut mask = Mat::new_rows_cols_with_default(blob.mask.rows(), blob.mask.cols(), core::CV_8UC1, Scalar::all(0.0))?;
+    let poly: Vector<Point> = t
+        .outline
+        .iter()
+        .step_by(2)
+        .map(|&q| {
+            let p = f.reg.pose.apply(q);
+            let (u, v) = to_mask(p, factor, blob);
+            Point::new((u * 16.0).round() as i32, (v * 16.0).round() as i32)
+        })
+        .collect();
+    let mut polys: Vector<Vector<Point>> = Vector::new();
+    polys.push(poly);
+    imgproc::fill_poly(&mut mask, &polys, Scalar::all(255.0), imgproc::LINE_8, 4, Point::new(0, 0))?;
+    Ok(mask)
+}
+
+fn erode1(m: &Mat) -> opencv::Result<Mat> {
+    let kernel = imgproc::get_structuring_element(imgproc::MORPH_RECT, core::Size::new(3, 3), Point::new(-1, -1))?;
+    let mut out = Mat::default();
+    imgproc::erode(m, &mut out, &kernel, Point::new(-1, -1), 1, core::BORDER_CONSTANT, Scalar::all(0.0))?;
+    Ok(out)
+}
+
+fn to_mask(p: Pt, factor: usize, blob: &Blob) -> (f64, f64) {
+    let f = factor as f64;
+    ((p.x - (f - 1.0) / 2.0) / f - blob.mask_origin.x as f64, (p.y - (f - 1.0) / 2.0) / f - blob.mask_origin.y as f64)
+}
+
+fn at_mask(mask: &Mat, blob: &Blob, p: Pt, factor: usize) -> bool {
+    let (u, v) = to_mask(p, factor, blob);
+    let (x, y) = (u.round() as i32, v.round() as i32);
+    x >= 0 && y >= 0 && x < mask.cols() && y < mask.rows() && mask.at_2d::<u8>(y, x).is_ok_and(|v| *v > 0)
+}
+
+fn overlap(a: &Mat, b: &Mat) -> f64 {
+    let mut both = Mat::default();
+    if core::bitwise_and(a, b, &mut both, &core::no_array()).is_err() {
+        return 0.0;
+    }
+    core::count_non_zero(&both).unwrap_or(0) as f64
+}
+
+/// Connected pieces of the region's material that none of `masks` explains, at least
+/// `min_area` frame pixels each: (area, centroid).
+fn leftover(region: &Region<'_>, masks: &[&Mat], min_area: f64) -> opencv::Result<Vec<(f64, Pt)>> {
+    let blob = region.blob;
+    let mut explained = Mat::new_rows_cols_with_default(blob.mask.rows(), blob.mask.cols(), core::CV_8UC1, Scalar::all(0.0))?;
+    for m in masks {
+        let mut t = Mat::default();
+        core::bitwise_or(&explained, *m, &mut t, &core::no_array())?;
+        explained = t;
+    }
+    // The coarse region is dilated by the closing and outlines are good to a decimated pixel or
+    // two: grow the explained material by that much, and open what is left to drop slivers.
+    let kernel = imgproc::get_structuring_element(imgproc::MORPH_ELLIPSE, core::Size::new(7, 7), Point::new(-1, -1))?;
+    let mut grown = Mat::default();
+    imgproc::dilate(&explained, &mut grown, &kernel, Point::new(-1, -1), 1, core::BORDER_CONSTANT, Scalar::all(0.0))?;
+    let mut rest = Mat::default();
+    let mut inv = Mat::default();
+    core::bitwise_not(&grown, &mut inv, &core::no_array())?;
+    core::bitwise_and(&blob.mask, &inv, &mut rest, &core::no_array())?;
+    let mut opened = Mat::default();
+    imgproc::morphology_ex(
+        &rest,
+        &mut opened,
+        imgproc::MORPH_OPEN,
+        &kernel,
+        Point::new(-1, -1),
+        1,
+        core::BORDER_CONSTANT,
+        Scalar::all(0.0),
+    )?;
+    let mut contours: Vector<Vector<Point>> = Vector::new();
+    imgproc::find_contours(&opened, &mut contours, imgproc::RETR_EXTERNAL, imgproc::CHAIN_APPROX_SIMPLE, Point::new(0, 0))?;
+    let f = region.coarse.factor as f64;
+    let mut out = Vec::new();
+    for c in contours.iter() {
+        let pts: Vec<Pt> = c
+            .iter()
+            .map(|q| {
+                Pt::new((q.x + blob.mask_origin.x) as f64 * f + (f - 1.0) / 2.0, (q.y + blob.mask_origin.y) as f64 * f + (f - 1.0) / 2.0)
+            })
+            .collect();
+        if pts.len() < 3 {
+            continue;
+        }
+        let (a, c) = area_centroid(&pts);
+        if a.abs() >= min_area {
+            out.push((a.abs(), c));
+        }
+    }
+    Ok(out)
+}
