@@ -114,6 +114,8 @@ pub struct Handshake {
     missed: u16,
     ack_ignored: u16,
     last_cycle: u16,
+    /// Debris pieces in the last estimated frame.
+    debris: u16,
     next_seq: u16,
     queue: VecDeque<Queued>,
     robot: RobotView,
@@ -156,6 +158,7 @@ impl Handshake {
             missed: 0,
             ack_ignored: 0,
             last_cycle: 0,
+            debris: 0,
             next_seq: 1,
             queue: VecDeque::new(),
             robot: RobotView::default(),
@@ -235,6 +238,7 @@ impl Handshake {
             addr::ROBOT_DROPPED => self.robot.dropped,
             addr::ROBOT_DATA_SEQ => self.robot.data_seq,
             addr::ROBOT_ACK_SEQ => self.robot.ack_seq,
+            addr::DEBRIS_COUNT => self.debris,
             addr::RESULT_ACK_IGNORED => self.ack_ignored,
             addr::RESULT_SEQ..=219 => {
                 let Some(q) = head else { return 0 };
@@ -343,6 +347,12 @@ impl Handshake {
 
     /// Reports an acquisition: queues its results (before BUSY clears, so a PLC that waits for
     /// BUSY = 0 after TRIGGER_ACK sees them). Reports for other acquisitions are ignored.
+    /// Reports the debris counted in the frame being completed (DEBRIS_COUNT); call before
+    /// [`Handshake::complete`] so that a PLC reading after BUSY clears sees both together.
+    pub fn set_debris(&mut self, count: usize) {
+        self.debris = count.min(65535) as u16;
+    }
+
     pub fn complete(&mut self, acq_id: u16, outcome: Outcome, now: Duration) {
         let Some((busy_id, started)) = self.busy else { return };
         if busy_id != acq_id {

@@ -31,7 +31,10 @@ pub struct Live {
     pub frame_errors: u64,
     pub accepted: u64,
     /// Rejected parts by REASON code.
-    pub rejected: [u64; 9],
+    pub rejected: [u64; crate::vision::Reason::ALL.len()],
+    /// Debris pieces seen, all frames, and in the latest frame.
+    pub debris_total: u64,
+    pub debris_last: u64,
     /// The latest cycle times (trigger to results), ms, newest last.
     pub cycle_ms: std::collections::VecDeque<f64>,
     pub last_error: Option<String>,
@@ -113,6 +116,7 @@ impl Worker {
     }
 
     fn process(&mut self, acq_id: u16, frame: Result<super::source::Frame, SourceError>, t0: Instant) {
+        let mut debris = 0;
         let outcome = match frame {
             Err(e) => {
                 let code = if matches!(e, SourceError::Unusable(_)) { error_code::FRAME } else { error_code::CAMERA };
@@ -140,6 +144,10 @@ impl Worker {
                         tracing::info!(camera = %self.name, acq_id, frame = %f.label, "no part");
                     }
                     let processing_ms = fe.timings.total;
+                    if fe.debris > 0 {
+                        tracing::info!(camera = %self.name, acq_id, "{} piece(s) of debris on the belt", fe.debris);
+                    }
+                    debris = fe.debris;
                     self.note_frame(f.image, f.label, fe);
                     Outcome::Parts { parts, processing_ms }
                 }
@@ -153,6 +161,7 @@ impl Worker {
             let mut hs = self.handshake.lock().unwrap_or_else(|p| p.into_inner());
             hs.set_camera_ok(self.source.ok());
             let expected = hs.expected_type();
+            hs.set_debris(debris);
             hs.complete(acq_id, outcome, self.started.elapsed());
             expected
         };
@@ -241,6 +250,8 @@ impl Worker {
                 live.rejected[p.reason.code() as usize] += 1;
             }
         }
+        live.debris_total += fe.debris as u64;
+        live.debris_last = fe.debris as u64;
         live.frame = Some(Arc::new(image));
         live.estimate = Some(fe);
         live.label = label;

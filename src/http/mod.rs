@@ -91,7 +91,7 @@ fn percentile(v: &[f64], q: f64) -> f64 {
 }
 
 /// Metric families: name, type, help.
-const FAMILIES: [(&str, &str, &str); 17] = [
+const FAMILIES: [(&str, &str, &str); 19] = [
     ("lfi_modbus_clients", "gauge", "Modbus/TCP clients connected."),
     ("lfi_modbus_requests_total", "counter", "Modbus requests answered."),
     ("lfi_modbus_exceptions_total", "counter", "Modbus requests answered with an exception."),
@@ -100,6 +100,8 @@ const FAMILIES: [(&str, &str, &str); 17] = [
     ("lfi_frame_errors_total", "counter", "Acquisitions without a usable frame."),
     ("lfi_parts_accepted_total", "counter", "Parts accepted."),
     ("lfi_parts_rejected_total", "counter", "Parts rejected, by reason."),
+    ("lfi_debris_total", "counter", "Pieces of debris seen (material too small to be a part), all frames."),
+    ("lfi_debris", "gauge", "Pieces of debris in the latest frame."),
     ("lfi_cycle_time_ms", "summary", "Trigger to results queued, last 512 cycles."),
     ("lfi_results_pending", "gauge", "Results waiting for RESULT_ACK."),
     ("lfi_acquisitions_total", "counter", "Acquisitions started."),
@@ -141,6 +143,8 @@ async fn metrics(State(state): State<AppState>) -> Response {
                 "lfi_frames_total" => line(live.frames.to_string()),
                 "lfi_frame_errors_total" => line(live.frame_errors.to_string()),
                 "lfi_parts_accepted_total" => line(live.accepted.to_string()),
+                "lfi_debris_total" => line(live.debris_total.to_string()),
+                "lfi_debris" => line(live.debris_last.to_string()),
                 "lfi_results_pending" => line(hs.queue().len().to_string()),
                 "lfi_acquisitions_total" => line(counters.acquisitions.to_string()),
                 "lfi_missed_triggers_total" => line(counters.missed_triggers.to_string()),

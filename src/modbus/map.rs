@@ -37,7 +37,7 @@ pub struct Register {
 /// Highest address of the map plus one; any address at or beyond is exception 0x02.
 pub const SIZE: u16 = 300;
 /// Value of MAP_VERSION: bumped when a PLC program written for the old map would break.
-pub const MAP_VERSION: u16 = 1;
+pub const MAP_VERSION: u16 = 2;
 
 pub mod addr {
     pub const TRIGGER: u16 = 0;
@@ -64,6 +64,7 @@ pub mod addr {
     pub const ROBOT_DROPPED: u16 = 116;
     pub const ROBOT_DATA_SEQ: u16 = 117;
     pub const ROBOT_ACK_SEQ: u16 = 118;
+    pub const DEBRIS_COUNT: u16 = 119;
     pub const RESULT_ACK_IGNORED: u16 = 120;
     pub const RESULT_SEQ: u16 = 200;
     pub const ACQ_ID: u16 = 201;
@@ -180,7 +181,7 @@ pub const MAP: &[Register] = &[
         "count",
         "Trigger edges while BUSY, offline or in ERROR: nothing started (wraps).",
     ),
-    reg(addr::MAP_VERSION, "MAP_VERSION", ReadOnly, U16, "version", "1."),
+    reg(addr::MAP_VERSION, "MAP_VERSION", ReadOnly, U16, "version", "2 (see \"Changes\" below)."),
     reg(
         addr::LAST_CYCLE_TIME,
         "LAST_CYCLE_TIME",
@@ -220,6 +221,14 @@ pub const MAP: &[Register] = &[
     reg(addr::ROBOT_DROPPED, "ROBOT_DROPPED", ReadOnly, U16, "count", "Parts not queued for the robot because its queue was full (wraps)."),
     reg(addr::ROBOT_DATA_SEQ, "ROBOT_DATA_SEQ", ReadOnly, U16, "seq", "Last DATA_SEQ written to the robot (0 none yet)."),
     reg(addr::ROBOT_ACK_SEQ, "ROBOT_ACK_SEQ", ReadOnly, U16, "seq", "Last ACK_SEQ read from the robot."),
+    reg(
+        addr::DEBRIS_COUNT,
+        "DEBRIS_COUNT",
+        ReadOnly,
+        U16,
+        "count",
+        "Pieces of debris (bolts, washers, chips: material too small to be a part) in the last estimated frame; never part results.",
+    ),
     reg(addr::RESULT_ACK_IGNORED, "RESULT_ACK_IGNORED", ReadOnly, U16, "count", "RESULT_ACK writes that named no pending result (wraps)."),
     reg(
         addr::RESULT_SEQ,
@@ -237,7 +246,7 @@ pub const MAP: &[Register] = &[
         ReadOnly,
         U16,
         "code",
-        "0 ok, 1 no part, 2 unknown type, 3 low confidence, 4 ambiguous, 5 touching/overlapping, 6 wrong type, 7 frame error, 8 at the image border.",
+        "0 ok, 1 no part, 2 unknown type, 3 low confidence, 4 ambiguous, 5 touching/overlapping, 6 wrong type, 7 frame error, 8 at the image border, 9 covered, 10 no clearance.",
     ),
     reg(addr::TYPE_ID, "TYPE_ID", ReadOnly, U16, "type id", "0 when no type."),
     reg(addr::FACE, "FACE", ReadOnly, U16, "code", "0 unknown, 1 up, 2 down."),
@@ -306,6 +315,8 @@ pub fn markdown() -> String {
     s.push_str("| 0x02 Illegal data address | any address outside 0..299; a write to a read-only or reserved register |\n");
     s.push_str("| 0x03 Illegal data value | a value other than 0 or 1 written to TRIGGER, CLEAR_ERROR or ONLINE |\n");
     s.push_str("| 0x0B Gateway target failed | a unit id that is no camera |\n");
+    s.push_str("\n## Changes\n\n");
+    s.push_str("MAP_VERSION 2 (from 1): REASON gains 9 `covered` (another part lies partly on this one: grasping it would drag the one on top) and 10 `no clearance` (the gripper's keep-out footprint around the part holds other material); DEBRIS_COUNT (119) is new. Every other address and meaning is unchanged. A MAP_VERSION 1 program that treats any DECISION 2 as a reject keeps working; one that looks REASON up in a table of nine entries must grow it.\n");
     s
 }
 

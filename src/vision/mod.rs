@@ -364,7 +364,7 @@ impl Estimator {
             let (est, contrast) = self.estimate_part(frame, &coarse, blob, noise, &mut tm)?;
             // A region one template cannot explain may hold several parts, or one part whose
             // silhouette came out wrong: look for each part in it by its own evidence.
-            if matches!(est.reason, Reason::Touching | Reason::UnknownType) {
+            if matches!(est.reason, Reason::Touching | Reason::UnknownType | Reason::AtBorder) {
                 let t = Instant::now();
                 let found = self.estimate_region(frame, &coarse, blob, &est, noise, contrast)?;
                 tm.clump += ms(t);
@@ -414,27 +414,18 @@ impl Estimator {
         contrast: f64,
     ) -> Result<Option<(Vec<PartEstimate>, usize)>, FrameError> {
         let p = &self.params;
-        let _ = frame;
         let region = clump::Region { coarse, blob, outline: &whole.outline, noise, contrast };
         let tolerance = |ei: usize| p.fit_tolerance + p.fit_tolerance_rel * self.lib.entries[ei].template.rms_radius() + noise / 15.0;
         let ex = clump::explain(&self.lib, &region, tolerance, self.min_debris_area);
         if ex.parts.is_empty() {
             return Ok(None);
         }
-        let segments = if whole.segments.is_empty() {
-            let (lo, hi) = bounds(&whole.outline);
-            let smallest = self.lib.entries.iter().map(|e| e.diag).fold(f64::INFINITY, f64::min);
-            lines::part_segments(
-                p.line_detector,
-                &coarse.small,
-                &coarse.edges,
-                coarse.factor,
-                blob,
-                p.min_segment_fraction * smallest.min((hi - lo).norm()),
-            )?
-        } else {
-            whole.segments.clone()
-        };
+        // The region's segments down to the smallest part's minimum length; each part keeps
+        // those its own size allows (5 % of its diagonal), as a separate part would.
+        let smallest = self.lib.entries.iter().map(|e| e.diag).fold(f64::INFINITY, f64::min);
+        let all_segments =
+            lines::part_segments(p.line_detector, &coarse.small, &coarse.edges, coarse.factor, blob, p.min_segment_fraction * smallest)?;
+        let (w, h) = (frame.width() as f64, frame.height() as f64);
         let noise_level = if contrast > 0.0 { (noise / contrast).clamp(0.0, 1.0) } else { 1.0 };
         let lambda = p.lambda0 * (1.0 - p.alpha * noise_level);
         let mut out = Vec::with_capacity(ex.parts.len() + ex.leftover.len());
@@ -463,7 +454,11 @@ impl Estimator {
                 descriptor: Vec::new(),
             };
             let diag = e.diag * pose.scale;
+            let segments: Vec<Segment> = all_segments.iter().filter(|s| s.len() >= p.min_segment_fraction * diag).copied().collect();
             est.confidence = confidence(&tpl.segments, &segments, &pose, diag, lambda);
+            let (lo, hi) = bounds(&est.outline);
+            let edge = 3.0;
+            let at_border = lo.x < edge || lo.y < edge || hi.x > w - 1.0 - edge || hi.y > h - 1.0 - edge;
             est.detail = format!(
                 "found in a region of several parts: {} {} outline explained {:.3} (need {:.2}), on the region's outline {:.3}, rms {:.2} px, scale {:.3}, confidence {:.3}",
                 tpl.type_name, tpl.face, f.support, p.min_support, f.reg.coverage, f.reg.rms, pose.scale, est.confidence
@@ -474,6 +469,9 @@ impl Estimator {
                 est.face = None;
                 est.reason = Reason::UnknownType;
                 est.detail = format!("scale {:.3} outside {:.2}..{:.2}; {}", pose.scale, p.scale_range.0, p.scale_range.1, est.detail);
+            } else if at_border {
+                est.reason = Reason::AtBorder;
+                est.detail = format!("its outline reaches the frame border (x {:.1}..{:.1}, y {:.1}..{:.1}); {}", lo.x, hi.x, lo.y, hi.y, est.detail);
             } else if let Some(k) = f.under {
                 let o = &self.lib.entries[ex.parts[k].entry].template;
                 est.reason = Reason::Covered;
