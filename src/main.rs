@@ -318,14 +318,16 @@ fn estimate(kb_path: &Path, json: bool, overlay_dir: Option<&Path>, repeat: usiz
                 } else {
                     let t = fe.timings;
                     println!(
-                        "{shown}: {} part(s), {ms:.1} ms (detect {:.1}, boundary {:.1}, lines {:.1}, correlate {:.1}, register {:.1}, confidence {:.1}), noise sigma {:.1}",
+                        "{shown}: {} part(s), {} debris, {ms:.1} ms (detect {:.1}, boundary {:.1}, lines {:.1}, correlate {:.1}, register {:.1}, confidence {:.1}, several parts {:.1}), noise sigma {:.1}",
                         fe.parts.len(),
+                        fe.debris,
                         t.detect,
                         t.boundary,
                         t.lines,
                         t.correlate,
                         t.register,
                         t.confidence,
+                        t.clump,
                         fe.noise_sigma
                     );
                     for p in &fe.parts {

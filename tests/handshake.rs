@@ -172,7 +172,7 @@ fn heartbeat_floats_and_stale_reports() {
     let mut h = Handshake::new(Settings { queue_depth: 4, online: true, word_order: WordOrder::LowFirst, types_enrolled: 3 });
     h.tick(Duration::from_millis(65_537_500));
     assert_eq!(h.word(addr::HEARTBEAT), 1, "65537 s wraps to 1");
-    assert_eq!(h.word(addr::MAP_VERSION), 1);
+    assert_eq!(h.word(addr::MAP_VERSION), lfi_bridge::modbus::map::MAP_VERSION);
     assert_eq!(h.word(addr::TYPES_ENROLLED), 3);
     let id = trigger(&mut h, 0).unwrap();
     h.complete(id + 7, Outcome::Parts { parts: vec![part(1, 1.0)], processing_ms: 1.0 }, ms(1));
@@ -259,4 +259,15 @@ mod over_tcp {
         assert_eq!(read(&mut ctx, 100, 1).await[0] & status::RESULT_OVERRUN, 0);
         running.stop().await;
     }
+}
+
+#[test]
+fn the_debris_count_of_the_frame_is_served_with_its_results() {
+    let mut h = Handshake::new(Settings { queue_depth: 4, online: true, word_order: WordOrder::HighFirst, types_enrolled: 3 });
+    let Some(Command::Acquire { acq_id }) = h.write(addr::TRIGGER, 1, Duration::ZERO) else { panic!("no acquisition") };
+    h.set_debris(3);
+    h.complete(acq_id, Outcome::Parts { parts: vec![], processing_ms: 1.0 }, Duration::from_millis(5));
+    assert_eq!(h.word(addr::DEBRIS_COUNT), 3);
+    h.set_debris(70_000);
+    assert_eq!(h.word(addr::DEBRIS_COUNT), 65535, "saturates");
 }

@@ -21,6 +21,23 @@ fn register_map_md_is_generated_from_the_table() {
     );
 }
 
+/// The codes the estimator can give are the codes the map documents (MAP_VERSION 2: covered,
+/// no clearance, the debris count).
+#[test]
+fn the_map_documents_every_reject_reason_and_the_debris_count() {
+    let reason = map::lookup(addr::REASON).unwrap();
+    for r in lfi_bridge::vision::Reason::ALL {
+        let entry = format!("{} {}", r.code(), r.as_str());
+        assert!(reason.doc.contains(&entry), "REASON does not document {entry:?}: {}", reason.doc);
+    }
+    assert_eq!(map::MAP_VERSION, 2);
+    assert_eq!(map::lookup(119).unwrap().name, "DEBRIS_COUNT");
+    let doc = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/register-map.md")).unwrap();
+    for needle in ["9 covered", "10 no clearance", "| 119 | 400120 | DEBRIS_COUNT |", "MAP_VERSION = 2", "MAP_VERSION 2 (from 1)"] {
+        assert!(doc.contains(needle), "register-map.md lacks {needle:?}");
+    }
+}
+
 async fn exception<T: std::fmt::Debug>(r: tokio_modbus::Result<T>) -> ExceptionCode {
     match r {
         Ok(Err(e)) => e,
@@ -54,7 +71,7 @@ async fn every_register_reads_and_writes_as_documented() {
             assert_eq!(*v, 0, "reserved address {a}");
         }
     }
-    assert_eq!(all[addr::MAP_VERSION as usize], 1);
+    assert_eq!(all[addr::MAP_VERSION as usize], map::MAP_VERSION);
     assert_eq!(all[addr::TYPES_ENROLLED as usize], 3);
     assert_eq!(all[addr::ONLINE as usize], 1);
     assert_eq!(
@@ -116,7 +133,7 @@ async fn exceptions_follow_the_specification_order() {
     // Unit ids: 0 and 255 reach the first camera, others are 0x0B.
     for unit in [0u8, 255] {
         let mut c = plc(a, unit).await;
-        assert_eq!(read(&mut c, addr::MAP_VERSION, 1).await[0], 1);
+        assert_eq!(read(&mut c, addr::MAP_VERSION, 1).await[0], map::MAP_VERSION);
     }
     let mut c = plc(a, 7).await;
     assert_eq!(exception(c.read_holding_registers(100, 1).await).await, ExceptionCode::GatewayTargetDevice);
@@ -130,7 +147,7 @@ async fn exceptions_follow_the_specification_order() {
     assert_eq!(raw(a, &fc8), vec![0, 11, 0, 0, 0, 3, 1, 0x88, 1]);
     // Garbage (wrong protocol id) closes that connection only.
     assert!(raw(a, &[1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12]).is_empty());
-    assert_eq!(read(&mut ctx, addr::MAP_VERSION, 1).await[0], 1, "other clients are unaffected");
+    assert_eq!(read(&mut ctx, addr::MAP_VERSION, 1).await[0], map::MAP_VERSION, "other clients are unaffected");
     running.stop().await;
 }
 
@@ -160,7 +177,7 @@ async fn floats_follow_the_configured_word_order_and_match_the_integers() {
 async fn write_allow_refuses_other_clients_writes_but_not_their_reads() {
     let running = start(&config("write_allow = [\"10.1.2.3\"]", "")).await;
     let mut ctx = plc(running.modbus_addr, 1).await;
-    assert_eq!(read(&mut ctx, addr::MAP_VERSION, 1).await[0], 1);
+    assert_eq!(read(&mut ctx, addr::MAP_VERSION, 1).await[0], map::MAP_VERSION);
     assert_eq!(exception(ctx.write_single_register(addr::TRIGGER, 1).await).await, ExceptionCode::IllegalFunction);
     assert_eq!(exception(ctx.write_multiple_registers(addr::ONLINE, &[0]).await).await, ExceptionCode::IllegalFunction);
     assert_eq!(read(&mut ctx, addr::ACQ_COUNT, 1).await[0], 0);
@@ -183,7 +200,7 @@ async fn connection_limit_and_idle_timeout() {
     tokio::time::sleep(Duration::from_millis(900)).await;
     assert!(!matches!(c1.read_holding_registers(100, 1).await, Ok(Ok(_))), "idle connection must be closed");
     let mut c4 = plc(a, 1).await;
-    assert_eq!(read(&mut c4, addr::MAP_VERSION, 1).await[0], 1);
+    assert_eq!(read(&mut c4, addr::MAP_VERSION, 1).await[0], map::MAP_VERSION);
     running.stop().await;
 }
 

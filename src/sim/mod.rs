@@ -40,6 +40,8 @@ pub struct Scene {
     pub image: GrayImage,
     pub truth: TruthRecord,
     pub extra: SceneExtra,
+    /// Where debris (washers, bolts) lies, frame pixels: never a part, not in the truth.
+    pub debris: Vec<Pt>,
 }
 
 /// Renderer settings recorded beside the truth (ignored by readers that do not know them).
@@ -50,6 +52,8 @@ pub struct SceneExtra {
     pub scale_px_per_mm: f64,
     pub width: usize,
     pub height: usize,
+    /// Pieces of debris in the scene.
+    pub debris: usize,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -69,6 +73,7 @@ pub struct Simulator {
     cfg: SimConfig,
     known: Vec<Prepared>,
     unknown: Prepared,
+    debris: Vec<Prepared>,
     px_per_mm: f64,
 }
 
@@ -87,6 +92,7 @@ impl Simulator {
         Ok(Self {
             known: models::known().into_iter().map(Prepared::new).collect(),
             unknown: Prepared::new(models::unknown()),
+            debris: models::debris().into_iter().map(Prepared::new).collect(),
             px_per_mm,
             cfg,
         })
@@ -210,7 +216,20 @@ impl Simulator {
         if let Some(n) = self.cfg.noise {
             light.noise_sigma = n;
         }
-        let image = render::render(self.cfg.width, self.cfg.height, &parts, &light, &mut rng)?;
+        // Scenes of several parts also get up to two pieces of debris, clear of the parts, from a
+        // generator of their own (so the parts and light stay those of earlier versions).
+        let mut debris_rng = ChaCha8Rng::seed_from_u64(self.cfg.seed.wrapping_mul(0xD1B5_4A32_D192_ED03) ^ index);
+        let mut scene_parts = parts.clone();
+        if matches!(condition, "multi" | "touching" | "overlapping") {
+            for _ in 0..debris_rng.random_range(0..=2) {
+                let d = &self.debris[debris_rng.random_range(0..self.debris.len())];
+                if let Some(pl) = self.free_spot(&mut debris_rng, d, scale, &scene_parts) {
+                    scene_parts.push((d, pl));
+                }
+            }
+        }
+        let debris: Vec<Pt> = scene_parts[parts.len()..].iter().map(|(_, pl)| Pt::new(pl.x, pl.y)).collect();
+        let image = render::render(self.cfg.width, self.cfg.height, &scene_parts, &light, &mut rng)?;
         let name = format!("s{index:05}_{condition}");
         let r4 = |v: f64| (v * 10000.0).round() / 10000.0;
         let r3 = |v: f64| (v * 1000.0).round() / 1000.0;
@@ -238,8 +257,9 @@ impl Simulator {
             scale_px_per_mm: r4(scale),
             width: self.cfg.width,
             height: self.cfg.height,
+            debris: debris.len(),
         };
-        Ok(Scene { name, image, truth, extra })
+        Ok(Scene { name, image, truth, extra, debris })
     }
 
     fn random_pose(&self, rng: &mut ChaCha8Rng, p: &Prepared, scale: f64) -> Option<Placement> {

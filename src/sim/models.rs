@@ -235,6 +235,30 @@ pub fn known() -> Vec<Model> {
     vec![bracket(), flange(), clevis()]
 }
 
+/// Debris that lies about on a real belt: a washer and a bolt (far smaller than any part).
+pub fn debris() -> Vec<Model> {
+    vec![
+        Model { name: "washer", material: vec![ring(0.0, 0.0, 2.2, 4.6)], holes: vec![], top: vec![], bottom: vec![], rounded: 0.0 },
+        Model {
+            name: "bolt",
+            material: vec![Shape::Poly(vec![
+                (-9.0, -1.6),
+                (5.0, -1.6),
+                (5.0, -3.6),
+                (9.0, -3.6),
+                (9.0, 3.6),
+                (5.0, 3.6),
+                (5.0, 1.6),
+                (-9.0, 1.6),
+            ])],
+            holes: vec![],
+            top: vec![],
+            bottom: vec![],
+            rounded: 0.0,
+        },
+    ]
+}
+
 /// The model that appears in "unknown" scenes and is never enrolled.
 pub fn unknown() -> Model {
     lever()

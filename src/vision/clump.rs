@@ -183,26 +183,39 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         }
     }
     // Which of two overlapping parts is on top: the one whose outline shows inside the other
-    // (away from the other's own outline: inside its mask eroded by a decimated pixel), where
+    // (away from the other's own outline: inside its mask eroded by a decimated pixel; they
+    // overlap at all where one's outline runs two decimated pixels inside the other, more than
+    // the poses of touching parts are off by), where
     // the lower one's outline runs under the upper's surface and shows nothing.
-    let eroded: Vec<Mat> = masks.iter().map(|m| erode1(m).unwrap_or_default()).collect();
+    let deep: Vec<Mat> = masks.iter().map(|m| erode(m, 5).unwrap_or_default()).collect();
+    let eroded: Vec<Mat> = masks.iter().map(|m| erode(m, 3).unwrap_or_default()).collect();
     let inside =
         |pts: &[Probe], mask: &Mat| -> Vec<usize> { (0..pts.len()).filter(|&j| at_mask(mask, region.blob, pts[j].at, f)).collect() };
-    let strength = |pts: &[Probe], idx: &[usize]| -> f64 {
-        if idx.is_empty() { 0.0 } else { idx.iter().map(|&j| pts[j].across).sum::<f64>() / idx.len() as f64 }
+    // A real outline runs with one polarity (the upper part brighter or darker than what it lies
+    // on); the edges of the upper part's own features that a hidden outline crosses come with
+    // either: the magnitude of the mean signed step tells them apart.
+    // Both must agree: the plain mean of the steps and the magnitude of the mean signed step;
+    // where they disagree, which part lies on top stays undecided (a reject either way).
+    let strength = |pts: &[Probe], idx: &[usize]| -> (f64, f64) {
+        if idx.is_empty() {
+            return (0.0, 0.0);
+        }
+        let n = idx.len() as f64;
+        (idx.iter().map(|&j| pts[j].across.abs()).sum::<f64>() / n, (idx.iter().map(|&j| pts[j].across).sum::<f64>() / n).abs())
     };
     let mut over: Vec<Vec<usize>> = vec![Vec::new(); found.len()];
     for (a, &i) in keep.iter().enumerate() {
         for &k in &keep[a + 1..] {
-            let (ii, kk) = (inside(&found[i].points, &eroded[k]), inside(&found[k].points, &eroded[i]));
-            if ii.len() < 4 && kk.len() < 4 {
+            if inside(&found[i].points, &deep[k]).len() < 4 && inside(&found[k].points, &deep[i]).len() < 4 {
                 continue; // touching at most
             }
+            let (ii, kk) = (inside(&found[i].points, &eroded[k]), inside(&found[k].points, &eroded[i]));
             let (si, sk) = (strength(&found[i].points, &ii), strength(&found[k].points, &kk));
-            if si > sk + edge.margin {
+            let m = edge.margin;
+            if si.0 > sk.0 + m && si.1 > sk.1 + m {
                 found[k].under.get_or_insert(i);
                 over[i].extend(ii);
-            } else if sk > si + edge.margin {
+            } else if sk.0 > si.0 + m && sk.1 > si.1 + m {
                 found[i].under.get_or_insert(k);
                 over[k].extend(kk);
             } else {
@@ -317,7 +330,7 @@ fn vote(model: &ShapeModel, centroid: Pt, scene: &[(Pt, usize, i32)], lo: Pt, hi
             cands.push((box_sum(b, y, x), b, y, x));
         }
     }
-    cands.sort_by(|a, b| b.0.cmp(&a.0));
+    cands.sort_by_key(|c| std::cmp::Reverse(c.0));
     let mut peaks: Vec<(u32, usize, usize, usize)> = Vec::new();
     for c in cands {
         let near = peaks.iter().any(|p| {
@@ -403,7 +416,8 @@ impl<'a> EdgeTest<'a> {
         Some(top * (1.0 - fy) + bot * fy)
     }
 
-    /// The gray-level step across the normal `n` near `p` (frame pixels): the largest, within
+    /// The gray-level step across the normal `n` near `p` (frame pixels), inside minus outside:
+    /// the largest, within
     /// a decimated pixel and a half along the normal, of the steps that run mostly across it
     /// (gradient within about 27 degrees of the normal), so that the texture and features of a
     /// neighbour's surface rarely count. 0 where none does.
@@ -411,6 +425,7 @@ impl<'a> EdgeTest<'a> {
         let f = self.factor as f64;
         let t = Pt::new(-n.y, n.x);
         let mut best = 0.0f64;
+        let mut signed = 0.0f64;
         for k in -3..=3 {
             let c = p + n.scale(k as f64 * 0.5 * f);
             let (Some(a), Some(b), Some(l), Some(r)) =
@@ -419,11 +434,12 @@ impl<'a> EdgeTest<'a> {
                 continue;
             };
             let across = (a - b).abs();
-            if across >= 2.0 * (l - r).abs() {
-                best = best.max(across);
+            if across >= 2.0 * (l - r).abs() && across > best {
+                best = across;
+                signed = a - b;
             }
         }
-        best
+        signed
     }
 }
 
@@ -434,7 +450,8 @@ struct Probe {
     at: Pt,
     /// Explained: on the region's outline, or a clear edge across the outline there.
     seen: bool,
-    /// Gray-level step across the outline there (see [`EdgeTest::across`]).
+    /// Gray-level step across the outline there, inside minus outside (see
+    /// [`EdgeTest::across`]).
     across: f64,
 }
 
@@ -447,7 +464,7 @@ fn verify(model: &ShapeModel, pose: &Similarity, ext: &OutlineIndex, edge: &Edge
         let nn = rotate_display(n, pose.angle_rad);
         let on_region = ext.nearest(at, tol * pose.scale).is_some();
         let across = edge.across(at, nn);
-        pts.push(Probe { at, seen: on_region || across >= edge.threshold, across });
+        pts.push(Probe { at, seen: on_region || across.abs() >= edge.threshold, across });
     }
     (pts.iter().filter(|p| p.seen).count() as f64 / pts.len().max(1) as f64, pts)
 }
@@ -472,8 +489,8 @@ fn mask_of(lib: &Library, f: &Found, blob: &Blob, factor: usize) -> opencv::Resu
     Ok(mask)
 }
 
-fn erode1(m: &Mat) -> opencv::Result<Mat> {
-    let kernel = imgproc::get_structuring_element(imgproc::MORPH_RECT, core::Size::new(3, 3), Point::new(-1, -1))?;
+fn erode(m: &Mat, size: i32) -> opencv::Result<Mat> {
+    let kernel = imgproc::get_structuring_element(imgproc::MORPH_ELLIPSE, core::Size::new(size, size), Point::new(-1, -1))?;
     let mut out = Mat::default();
     imgproc::erode(m, &mut out, &kernel, Point::new(-1, -1), 1, core::BORDER_CONSTANT, Scalar::all(0.0))?;
     Ok(out)

@@ -471,7 +471,10 @@ impl Estimator {
                 est.detail = format!("scale {:.3} outside {:.2}..{:.2}; {}", pose.scale, p.scale_range.0, p.scale_range.1, est.detail);
             } else if at_border {
                 est.reason = Reason::AtBorder;
-                est.detail = format!("its outline reaches the frame border (x {:.1}..{:.1}, y {:.1}..{:.1}); {}", lo.x, hi.x, lo.y, hi.y, est.detail);
+                est.detail = format!(
+                    "its outline reaches the frame border (x {:.1}..{:.1}, y {:.1}..{:.1}); {}",
+                    lo.x, hi.x, lo.y, hi.y, est.detail
+                );
             } else if let Some(k) = f.under {
                 let o = &self.lib.entries[ex.parts[k].entry].template;
                 est.reason = Reason::Covered;
