@@ -196,12 +196,19 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     // either: the magnitude of the mean signed step tells them apart.
     // Both must agree: the plain mean of the steps and the magnitude of the mean signed step;
     // where they disagree, which part lies on top stays undecided (a reject either way).
-    let strength = |pts: &[Probe], idx: &[usize]| -> (f64, f64) {
+    // And the upper outline must clearly show there (at least half its points a clear edge),
+    // the lower one mostly not (at most 30 %): two parts of one gray with no line between them
+    // stay undecided however their means compare.
+    let strength = |pts: &[Probe], idx: &[usize]| -> (f64, f64, f64) {
         if idx.is_empty() {
-            return (0.0, 0.0);
+            return (0.0, 0.0, 0.0);
         }
         let n = idx.len() as f64;
-        (idx.iter().map(|&j| pts[j].across.abs()).sum::<f64>() / n, (idx.iter().map(|&j| pts[j].across).sum::<f64>() / n).abs())
+        (
+            idx.iter().map(|&j| pts[j].across.abs()).sum::<f64>() / n,
+            (idx.iter().map(|&j| pts[j].across).sum::<f64>() / n).abs(),
+            idx.iter().filter(|&&j| pts[j].across.abs() >= 0.4 * edge.threshold).count() as f64 / n,
+        )
     };
     let mut over: Vec<Vec<usize>> = vec![Vec::new(); found.len()];
     for (a, &i) in keep.iter().enumerate() {
@@ -212,10 +219,10 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             let (ii, kk) = (inside(&found[i].points, &eroded[k]), inside(&found[k].points, &eroded[i]));
             let (si, sk) = (strength(&found[i].points, &ii), strength(&found[k].points, &kk));
             let m = edge.margin;
-            if si.0 > sk.0 + m && si.1 > sk.1 + m {
+            if si.0 > sk.0 + m && si.1 > sk.1 + m && si.2 >= 0.5 && sk.2 <= 0.3 {
                 found[k].under.get_or_insert(i);
                 over[i].extend(ii);
-            } else if sk.0 > si.0 + m && sk.1 > si.1 + m {
+            } else if sk.0 > si.0 + m && sk.1 > si.1 + m && sk.2 >= 0.5 && si.2 <= 0.3 {
                 found[i].under.get_or_insert(k);
                 over[k].extend(kk);
             } else {
