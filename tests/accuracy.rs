@@ -71,6 +71,6 @@ fn clumps_give_their_uncovered_parts_and_keep_the_covered_ones() {
     let (touching, overlapping) = (group("touching"), group("overlapping"));
     assert!(touching.uncovered_parts >= 20, "too few touching parts: {}", touching.uncovered_parts);
     assert!(touching.top >= 0.9, "touching top% {:.3}", touching.top);
-    assert!(overlapping.top >= 0.2, "overlapping top% {:.3}", overlapping.top);
+    assert!(overlapping.top >= 0.7, "overlapping top% {:.3}", overlapping.top);
     assert!(report.overall.angle_err_median <= 0.1, "angle median {}", report.overall.angle_err_median);
 }

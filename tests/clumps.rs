@@ -73,8 +73,8 @@ fn an_overlap_gives_the_top_part_and_rejects_the_bottom_one_as_covered() {
     // Where the image cannot tell which part lies on top both are rejected (touching/overlapping):
     // safe, but the top part is lost. These floors keep what the stage gives today
     // (measured: README), below the 95 %.
-    assert!(tops_picked * 100 >= tops * 20, "top parts picked: {tops_picked} of {tops}");
-    assert!(covered * 100 >= bottoms * 20, "bottom parts rejected as covered: {covered} of {bottoms}");
+    assert!(tops_picked * 100 >= tops * 60, "top parts picked: {tops_picked} of {tops}");
+    assert!(covered * 100 >= bottoms * 60, "bottom parts rejected as covered: {covered} of {bottoms}");
 }
 
 #[test]

@@ -185,20 +185,17 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     // Which of two overlapping parts is on top: the one whose outline shows inside the other
     // (away from the other's own outline: inside its mask eroded by a decimated pixel; they
     // overlap at all where one's outline runs two decimated pixels inside the other, more than
-    // the poses of touching parts are off by), where
-    // the lower one's outline runs under the upper's surface and shows nothing.
+    // the poses of touching parts are off by), where the lower one's outline runs under the
+    // upper's surface and shows nothing.
     let deep: Vec<Mat> = masks.iter().map(|m| erode(m, 5).unwrap_or_default()).collect();
     let eroded: Vec<Mat> = masks.iter().map(|m| erode(m, 3).unwrap_or_default()).collect();
     let inside =
         |pts: &[Probe], mask: &Mat| -> Vec<usize> { (0..pts.len()).filter(|&j| at_mask(mask, region.blob, pts[j].at, f)).collect() };
-    // A real outline runs with one polarity (the upper part brighter or darker than what it lies
-    // on); the edges of the upper part's own features that a hidden outline crosses come with
-    // either: the magnitude of the mean signed step tells them apart.
-    // Both must agree: the plain mean of the steps and the magnitude of the mean signed step;
-    // where they disagree, which part lies on top stays undecided (a reject either way).
-    // And the upper outline must clearly show there (at least half its points a clear edge),
-    // the lower one mostly not (at most 30 %): two parts of one gray with no line between them
-    // stay undecided however their means compare.
+    // Three measures of how an outline shows inside the other part: the fraction of its points
+    // with an edge at all (the most telling), the mean step, and the magnitude of the mean
+    // signed step (a real outline runs with one polarity, the features of the upper part that a
+    // hidden outline crosses come with either). Where they do not point the same way, which
+    // part lies on top stays undecided: a reject either way.
     let strength = |pts: &[Probe], idx: &[usize]| -> (f64, f64, f64) {
         if idx.is_empty() {
             return (0.0, 0.0, 0.0);
@@ -219,10 +216,13 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             let (ii, kk) = (inside(&found[i].points, &eroded[k]), inside(&found[k].points, &eroded[i]));
             let (si, sk) = (strength(&found[i].points, &ii), strength(&found[k].points, &kk));
             let m = edge.margin;
-            if si.0 > sk.0 + m && si.1 > sk.1 + m && si.2 >= 0.5 && sk.2 <= 0.3 {
+            // The most telling measure is how much of each outline shows as an edge at all; the
+            // means of the steps may only not both speak against it.
+            let on_top = |a: (f64, f64, f64), b: (f64, f64, f64)| a.2 >= 0.4 && a.2 >= b.2 + 0.2 && !(b.0 > a.0 + m && b.1 > a.1 + m);
+            if on_top(si, sk) {
                 found[k].under.get_or_insert(i);
                 over[i].extend(ii);
-            } else if sk.0 > si.0 + m && sk.1 > si.1 + m && sk.2 >= 0.5 && si.2 <= 0.3 {
+            } else if on_top(sk, si) {
                 found[i].under.get_or_insert(k);
                 over[k].extend(kk);
             } else {
