@@ -217,7 +217,7 @@ async fn fifty_clients_polling_a_hundred_times_a_second_see_no_errors() {
             for _ in 0..200 {
                 iv.tick().await;
                 match ctx.read_holding_registers(100, 21).await {
-                    Ok(Ok(v)) if v.len() == 21 && v[7] == 1 => {}
+                    Ok(Ok(v)) if v.len() == 21 && v[7] == map::MAP_VERSION => {}
                     _ => errors += 1,
                 }
             }

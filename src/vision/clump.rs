@@ -27,9 +27,9 @@ use super::register::{self, OutlineIndex, Registration};
 use super::template::Library;
 
 /// Spacing of the voting points on both outlines, frame pixels: fine enough that a part's
-/// visible stretch casts dozens of votes, coarse enough that a pair of parts costs about 0.2 M
-/// votes per template.
-const VOTE_SPACING: f64 = 8.0;
+/// visible stretch casts dozens of votes, coarse enough that a pair of parts costs well under
+/// 0.1 M votes per template once the turns are matched.
+const VOTE_SPACING: f64 = 10.0;
 /// Rotation bins of the vote accumulator (10 degrees). Each vote rotates by its own pair's angle
 /// (to [`FINE`] steps), so the centroid votes of a true pose agree whatever the bin width: the
 /// bins only keep parts at different angles apart, and a small accumulator stays in cache.
@@ -57,6 +57,8 @@ pub struct ShapeModel {
     vote: Vec<(Pt, usize, i32)>,
     /// Verification points on the outline and their outward unit normals (template pixels).
     verify: Vec<(Pt, Pt)>,
+    /// Largest distance of the outline from the centroid, template pixels.
+    radius: f64,
 }
 
 impl ShapeModel {
@@ -67,7 +69,8 @@ impl ShapeModel {
         let fs = smooth_closed(&fp, 2);
         let fnm = outward_normals(&fs, 2);
         let verify = fp.iter().copied().zip(fnm).collect();
-        Self { vote, verify }
+        let radius = outline.iter().map(|p| (*p - centroid).norm()).fold(0.0, f64::max);
+        Self { vote, verify, radius }
     }
 }
 
@@ -134,7 +137,6 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         fb.total_cmp(&fa)
     });
     hyps.truncate(MAX_HYPOTHESES);
-
     let ext = OutlineIndex::new(region.outline);
     let edge = EdgeTest::new(region);
     let mut found: Vec<Found> = Vec::new();
@@ -149,11 +151,18 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         if duplicate || verify(&e.shape, &init, &ext, &edge, 2.0 * tol, 4).0 < MIN_SUPPORT - 0.2 {
             continue;
         }
-        let rough = register::register(region.outline, &e.index, init, tol, 4);
-        if verify(&e.shape, &rough.pose, &ext, &edge, tol, 3).0 < MIN_SUPPORT - 0.1 {
+        // Registration on the stretch of the region's outline the part can reach: the rest is
+        // its neighbours', and costs correspondence searches that find nothing.
+        let reach = e.shape.radius * 1.2 + 2.0 * register::MAX_REACH;
+        let local: Vec<Pt> = region.outline.iter().copied().filter(|p| (*p - init.to).norm() <= reach).collect();
+        if local.len() < 16 {
             continue;
         }
-        let reg = register::register(region.outline, &e.index, rough.pose, tol, 2);
+        let rough = register::register(&local, &e.index, init, tol, 4);
+        if verify(&e.shape, &rough.pose, &ext, &edge, tol, 3).0 < MIN_SUPPORT - 0.05 {
+            continue;
+        }
+        let reg = register::register(&local, &e.index, rough.pose, tol, 2);
         let (support, points) = verify(&e.shape, &reg.pose, &ext, &edge, tol, 1);
         if support < MIN_SUPPORT {
             continue;
