@@ -74,3 +74,65 @@ fn clumps_give_their_uncovered_parts_and_keep_the_covered_ones() {
     assert!(overlapping.top >= 0.7, "overlapping top% {:.3}", overlapping.top);
     assert!(report.overall.angle_err_median <= 0.1, "angle median {}", report.overall.angle_err_median);
 }
+
+#[test]
+fn noise_sigma_30_keeps_pose_accuracy_above_95_percent() {
+    let sim = common::simulator(202, Some(30.0));
+    let est = Estimator::new(&common::enrolled(&sim), Params::default()).unwrap();
+    let scenes: Vec<(u64, &str)> = (0..12u64).map(|i| (i, if i % 3 == 2 { "multi" } else { "clean" })).collect();
+    let report = eval::evaluate(&common::observe(&sim, &est, &scenes), &enrolled_names(&est));
+    print(&report);
+    assert_eq!(report.overall.false_accepts, 0, "{:?}", report.false_accept_details);
+    assert!(report.overall.parts >= 15);
+    assert!(report.overall.pose_accuracy >= 0.95, "pose accuracy {}", report.overall.pose_accuracy);
+    assert!(report.overall.pass_through >= 0.9, "pass-through {}", report.overall.pass_through);
+}
+
+/// The shared customer samples (an independent renderer), which lie beside the checkout.
+#[test]
+fn shared_samples_have_no_false_accepts_and_clean_poses_right() {
+    shared_set("samples");
+}
+
+/// The same on the scenes with a real line's effects (flash, tilt, blur, JPEG, seams, bolts).
+#[test]
+fn hard_samples_have_no_false_accepts_and_clean_poses_right() {
+    shared_set("samples-hard");
+}
+
+fn shared_set(name: &str) {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared").join(name);
+    let truth_path = dir.join("truth.jsonl");
+    assert!(truth_path.exists(), "{} not found: the shared samples must lie beside the checkout (as in CI)", truth_path.display());
+    let mut templates = Vec::new();
+    for (i, name) in ["A", "B", "C"].iter().enumerate() {
+        for face in [lfi_bridge::vision::Face::Up, lfi_bridge::vision::Face::Down] {
+            let (img, _) = lfi_bridge::imageio::read_gray(&dir.join(format!("templates/{name}_{face}.png"))).unwrap();
+            templates.push(
+                lfi_bridge::vision::Template::from_image(img.view().unwrap(), name, i as u16 + 1, face, None, &Params::default()).unwrap(),
+            );
+        }
+    }
+    let est = Estimator::new(&templates, Params::default()).unwrap();
+    let records = lfi_bridge::truth::parse_truth(&std::fs::read_to_string(&truth_path).unwrap(), "truth.jsonl").unwrap();
+    let obs: Vec<_> = records
+        .into_iter()
+        .map(|truth| {
+            let (img, _) = lfi_bridge::imageio::read_gray(&dir.join(&truth.image)).unwrap();
+            let fe = est.estimate(img.view().unwrap()).unwrap();
+            lfi_bridge::eval::Observation {
+                truth,
+                parts: fe.parts.iter().map(lfi_bridge::truth::EstimatePart::from_estimate).collect(),
+                elapsed_ms: fe.timings.total,
+            }
+        })
+        .collect();
+    let report = eval::evaluate(&obs, &enrolled_names(&est));
+    print(&report);
+    assert_eq!(report.overall.false_accepts, 0, "{:?}", report.false_accept_details);
+    for g in report.by_condition.iter().filter(|g| g.group == "clean" || g.group == "noise") {
+        assert!(g.pose_accuracy >= 0.99, "{}: pose accuracy {}", g.group, g.pose_accuracy);
+    }
+    assert_eq!(report.overall.unknown_rejected, report.overall.unknown_parts);
+    assert_eq!(report.overall.covered_accepts, 0, "covered parts accepted");
+}
