@@ -15,6 +15,7 @@
 //! area_px = 145870.0
 //! outline = [[x, y], ...]       # sub-pixel, template pixels
 //! segments = [[x1, y1, x2, y2, width], ...]
+//! keep_out = [[x, y, r], ...]   # optional: the gripper's keep-out circles, template pixels
 //! ```
 //!
 //! Loading checks everything it reads and names the file, the template and the field at fault.
@@ -23,7 +24,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::vision::{Face, Pt, Segment, Template};
+use crate::vision::{Face, KeepOut, Pt, Segment, Template};
 
 pub const FORMAT: &str = "lfi-bridge knowledge base";
 pub const VERSION: u32 = 1;
@@ -71,6 +72,9 @@ struct Record {
     area_px: f64,
     outline: Vec<[f64; 2]>,
     segments: Vec<[f64; 5]>,
+    /// Gripper keep-out circles [x, y, r], template pixels (optional).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    keep_out: Vec<[f64; 3]>,
 }
 
 /// One enrolled template and the image it came from.
@@ -148,6 +152,7 @@ impl KnowledgeBase {
                         area_px: r3(t.area),
                         outline: t.outline.iter().map(|p| [r3(p.x), r3(p.y)]).collect(),
                         segments: t.segments.iter().map(|s| [r3(s.a.x), r3(s.a.y), r3(s.b.x), r3(s.b.y), r3(s.width)]).collect(),
+                        keep_out: t.keep_out.iter().map(|k| [r3(k.c.x), r3(k.c.y), r3(k.r)]).collect(),
                     }
                 })
                 .collect(),
@@ -200,6 +205,15 @@ impl KnowledgeBase {
             if r.area_px.is_nan() || r.area_px <= 0.0 {
                 return Err(bad(format!("area_px = {} must be positive", r.area_px)));
             }
+            let span = r.image_size[0].max(r.image_size[1]) as f64;
+            for (k, c) in r.keep_out.iter().enumerate() {
+                let inside = c[..2].iter().all(|v| v.is_finite() && v.abs() <= 10.0 * span);
+                if !(inside && c[2] > 0.0 && c[2] <= 10.0 * span) {
+                    return Err(bad(format!(
+                        "keep_out[{k}] = {c:?}: a circle [x, y, r] in template pixels, within 10 image sizes ({span}) of the template, r > 0"
+                    )));
+                }
+            }
             let template = Template {
                 type_name: r.type_name.clone(),
                 type_id: r.id,
@@ -211,6 +225,7 @@ impl KnowledgeBase {
                 area: r.area_px,
                 outline: r.outline.iter().map(|p| Pt::new(p[0], p[1])).collect(),
                 segments: r.segments.iter().map(|s| Segment { a: Pt::new(s[0], s[1]), b: Pt::new(s[2], s[3]), width: s[4] }).collect(),
+                keep_out: r.keep_out.iter().map(|c| KeepOut { c: Pt::new(c[0], c[1]), r: c[2] }).collect(),
             };
             if kb.entries.iter().any(|e| e.template.type_name == template.type_name && e.template.face == template.face) {
                 return Err(bad("this type and face appear twice".into()));
@@ -251,7 +266,27 @@ mod tests {
             area: 1234.5,
             outline: (0..20).map(|i| Pt::new(50.0 + 20.0 * (i as f64 * 0.314).cos(), 40.0 + 20.0 * (i as f64 * 0.314).sin())).collect(),
             segments: vec![Segment { a: Pt::new(1.0, 2.0), b: Pt::new(30.0, 2.0), width: 2.5 }],
+            keep_out: Vec::new(),
         }
+    }
+
+    #[test]
+    fn keep_out_circles_round_trip_and_bad_ones_are_named() {
+        let mut kb = KnowledgeBase::default();
+        let mut t = tpl("bracket", 1, Face::Up);
+        t.keep_out = vec![KeepOut { c: Pt::new(90.0, 40.0), r: 15.0 }];
+        kb.enroll(t, "a.png".into()).unwrap();
+        let text = kb.to_toml();
+        assert!(text.contains("keep_out"), "{text}");
+        let back = KnowledgeBase::from_toml(&text, Path::new("kb.toml")).unwrap();
+        assert_eq!(back.entries[0].template.keep_out, kb.entries[0].template.keep_out);
+        let bad = text.replace("15.0", "-1.0");
+        let e = KnowledgeBase::from_toml(&bad, Path::new("kb.toml")).unwrap_err().to_string();
+        assert!(e.contains("kb.toml") && e.contains("template 1") && e.contains("keep_out[0]"), "{e}");
+        // Without the key, no footprint (and the file does not mention one).
+        assert!(
+            !KnowledgeBase { entries: vec![Entry { template: tpl("b", 2, Face::Up), source: "b".into() }] }.to_toml().contains("keep_out")
+        );
     }
 
     #[test]

@@ -42,6 +42,10 @@ enum Cmd {
         /// Template point reported as the part's position, "X,Y" in template pixels (default: the image centre).
         #[arg(long, value_parser = parse_point)]
         origin: Option<Pt>,
+        /// A circle of the gripper's keep-out footprint, "X,Y,R" in template pixels (repeat for
+        /// more): other material inside it rejects the part as "no clearance".
+        #[arg(long = "keep-out", value_parser = parse_circle)]
+        keep_out: Vec<lfi_bridge::vision::KeepOut>,
         image: PathBuf,
     },
     /// Render scenes of built-in parts with ground truth (images/, templates/, truth.jsonl).
@@ -98,6 +102,14 @@ fn parse_face(s: &str) -> Result<Face, String> {
     s.parse()
 }
 
+fn parse_circle(s: &str) -> Result<lfi_bridge::vision::KeepOut, String> {
+    let v: Vec<f64> = s.split(',').map(|p| p.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| format!("{s:?}: {e}"))?;
+    match v[..] {
+        [x, y, r] if x.is_finite() && y.is_finite() && r.is_finite() && r > 0.0 => Ok(lfi_bridge::vision::KeepOut { c: Pt::new(x, y), r }),
+        _ => Err(format!("{s:?}: expected X,Y,R in template pixels with R > 0")),
+    }
+}
+
 fn parse_point(s: &str) -> Result<Pt, String> {
     let (x, y) = s.split_once(',').ok_or_else(|| format!("expected X,Y, got {s:?}"))?;
     let x: f64 = x.trim().parse().map_err(|e| format!("bad X in {s:?}: {e}"))?;
@@ -129,7 +141,7 @@ fn main() -> ExitCode {
             print!("{}{}", lfi_bridge::modbus::map::markdown(), lfi_bridge::robot::markdown());
             Ok(ExitCode::SUCCESS)
         }
-        Cmd::Enroll { kb, type_name, id, face, origin, image } => enroll(&kb, &type_name, id, face, origin, &image),
+        Cmd::Enroll { kb, type_name, id, face, origin, keep_out, image } => enroll(&kb, &type_name, id, face, origin, keep_out, &image),
         Cmd::Simulate { out, count, seed, noise, width, height } => simulate(&out, count, SimConfig { width, height, seed, noise }),
         Cmd::Estimate { kb, json, overlay_dir, repeat, images } => estimate(&kb, json, overlay_dir.as_deref(), repeat.max(1), &images),
         Cmd::Eval { kb, truth, json } => evaluate(&kb, &truth, json),
@@ -186,14 +198,23 @@ async fn wait_for_signal() {
     }
 }
 
-fn enroll(kb_path: &Path, type_name: &str, id: u16, face: Face, origin: Option<Pt>, image: &Path) -> Result<ExitCode> {
+fn enroll(
+    kb_path: &Path,
+    type_name: &str,
+    id: u16,
+    face: Face,
+    origin: Option<Pt>,
+    keep_out: Vec<lfi_bridge::vision::KeepOut>,
+    image: &Path,
+) -> Result<ExitCode> {
     let mut kb = KnowledgeBase::load_or_new(kb_path)?;
     let (img, notes) = imageio::read_gray(image)?;
     for n in notes {
         tracing::warn!(image = %image.display(), "{n}");
     }
-    let t = Template::from_image(img.view()?, type_name, id, face, origin, &Params::default())
+    let mut t = Template::from_image(img.view()?, type_name, id, face, origin, &Params::default())
         .with_context(|| format!("cannot enroll {}", image.display()))?;
+    t.keep_out = keep_out;
     let summary = format!(
         "{} {} (id {}): {} outline points, {} line features, area {:.0} px^2, outline centroid ({:.2}, {:.2}), origin ({:.2}, {:.2})",
         t.type_name,

@@ -97,3 +97,48 @@ fn debris_is_counted_and_never_a_part_result() {
     }
     assert!(pieces >= 4, "the scenes hold {pieces} pieces of debris");
 }
+
+/// A keep-out circle beside the part: empty, the part is accepted; a washer in it, the part is
+/// rejected `no clearance` (and the washer is debris, not a result).
+#[test]
+fn a_washer_in_the_gripper_footprint_means_no_clearance() {
+    let sim = common::simulator(707, None);
+    let mut templates = common::enrolled(&sim);
+    let plain = Estimator::new(&templates, Params::default()).unwrap();
+    let scene = sim.scene_with(0, "clean").unwrap();
+    let fe = plain.estimate(scene.image.view().unwrap()).unwrap();
+    let part = fe.parts.iter().find(|p| p.accepted).expect("the clean part is accepted");
+    let (entry, pose) = part.matched.expect("a pose");
+    // 60 px beyond the outline point farthest from the centroid, radius 45 px.
+    let t = templates[entry].clone();
+    let far = t.outline.iter().copied().max_by(|a, b| (*a - t.centroid).norm().total_cmp(&(*b - t.centroid).norm())).unwrap();
+    let dir = (far - t.centroid).scale(1.0 / (far - t.centroid).norm());
+    let centre = far + dir.scale(60.0);
+    for tpl in templates.iter_mut().filter(|x| x.type_name == t.type_name) {
+        tpl.keep_out = vec![lfi_bridge::vision::KeepOut { c: centre, r: 45.0 }];
+    }
+    let guarded = Estimator::new(&templates, Params::default()).unwrap();
+    let clear = guarded.estimate(scene.image.view().unwrap()).unwrap();
+    assert!(
+        clear.parts.iter().any(|p| p.accepted),
+        "an empty footprint must not reject: {:?}",
+        clear.parts.iter().map(|p| &p.detail).collect::<Vec<_>>()
+    );
+    // A washer (ring 10..22 px) at the footprint's centre.
+    let mut img = scene.image.clone();
+    let c = pose.apply(centre);
+    for y in (c.y as i64 - 24)..=(c.y as i64 + 24) {
+        for x in (c.x as i64 - 24)..=(c.x as i64 + 24) {
+            let d = (x as f64 - c.x).hypot(y as f64 - c.y);
+            if (10.0..=22.0).contains(&d) && x >= 0 && y >= 0 && (x as usize) < img.width && (y as usize) < img.height {
+                img.data[y as usize * img.width + x as usize] = 180;
+            }
+        }
+    }
+    let blocked = guarded.estimate(img.view().unwrap()).unwrap();
+    let p = blocked.parts.iter().find(|p| (p.x - part.x).hypot(p.y - part.y) < 10.0).expect("the part is still found");
+    assert_eq!(p.reason, Reason::NoClearance, "{}", p.detail);
+    assert!(!p.accepted);
+    assert!(!blocked.parts.iter().any(|q| (q.x - c.x).hypot(q.y - c.y) < 60.0), "the washer is no result");
+    assert!(blocked.debris >= 1, "the washer is counted as debris");
+}

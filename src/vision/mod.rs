@@ -29,7 +29,7 @@ use std::time::Instant;
 pub use frame::{FrameError, GrayImage, GrayView};
 pub use geometry::Pt;
 pub use lines::{LineDetector, LineFeature, Segment};
-pub use template::{Library, Template, TemplateError};
+pub use template::{KeepOut, Library, Template, TemplateError};
 
 use boundary::RefineParams;
 use detect::DetectParams;
@@ -499,6 +499,9 @@ impl Estimator {
                 );
             } else if est.confidence < p.accept_threshold {
                 est.reason = Reason::LowConfidence;
+            } else if let Some(n) = blocked_footprint(coarse, tpl, &pose, &est.outline) {
+                est.reason = Reason::NoClearance;
+                est.detail = format!("{n} edge pixels of other material inside the gripper's keep-out footprint; {}", est.detail);
             } else {
                 est.accepted = true;
                 est.reason = Reason::Ok;
@@ -758,10 +761,53 @@ impl Estimator {
             est.reason = Reason::LowConfidence;
             return Ok((est, contrast));
         }
+        if let Some(n) = blocked_footprint(coarse, tpl, &pose, &outline) {
+            est.reason = Reason::NoClearance;
+            est.detail = format!("{n} edge pixels of other material inside the gripper's keep-out footprint; {}", est.detail);
+            return Ok((est, contrast));
+        }
         est.accepted = true;
         est.reason = Reason::Ok;
         Ok((est, contrast))
     }
+}
+
+/// Other material inside the part's keep-out footprint: the number of the decimated frame's edge
+/// pixels inside any of the template's keep-out circles (placed by `pose`) that are neither
+/// inside the part's own outline (`own`, frame pixels) nor within a few pixels of it, when there
+/// are at least three (a speck of noise is not an obstacle); None without a footprint.
+fn blocked_footprint(coarse: &detect::Coarse, tpl: &Template, pose: &Similarity, own: &[Pt]) -> Option<usize> {
+    use opencv::prelude::*;
+    if tpl.keep_out.is_empty() {
+        return None;
+    }
+    let f = coarse.factor as f64;
+    let (w, h) = (coarse.edges.cols() as usize, coarse.edges.rows() as usize);
+    let edges = coarse.edges.data_bytes().ok()?;
+    let poly: Vec<Pt> = own.iter().step_by(4).copied().collect();
+    let spacing = poly.windows(2).map(|p| (p[1] - p[0]).norm()).fold(0.0, f64::max);
+    let band = 3.0 * f + spacing;
+    let mut count = 0;
+    for k in &tpl.keep_out {
+        let c = pose.apply(k.c);
+        let r = k.r * pose.scale;
+        let to_small = |v: f64| (v - (f - 1.0) / 2.0) / f;
+        let (x0, x1) = (to_small(c.x - r).floor().max(0.0) as usize, (to_small(c.x + r).ceil().max(0.0) as usize).min(w.saturating_sub(1)));
+        let (y0, y1) = (to_small(c.y - r).floor().max(0.0) as usize, (to_small(c.y + r).ceil().max(0.0) as usize).min(h.saturating_sub(1)));
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                if edges[y * w + x] == 0 {
+                    continue;
+                }
+                let q = Pt::new(x as f64 * f + (f - 1.0) / 2.0, y as f64 * f + (f - 1.0) / 2.0);
+                if (q - c).norm() > r || geometry::contains(&poly, q) || poly.iter().any(|p| (*p - q).norm() <= band) {
+                    continue;
+                }
+                count += 1;
+            }
+        }
+    }
+    (count >= 3).then_some(count)
 }
 
 /// conf = (1/N) sum_k gamma_k exp(-lambda err_k) over the template's N line features mapped into

@@ -33,6 +33,16 @@ pub struct Template {
     pub outline: Vec<Pt>,
     /// Line segments (frame of the template image).
     pub segments: Vec<Segment>,
+    /// The gripper's keep-out footprint, template pixels: material of anything else inside it
+    /// rejects the part (`no clearance`). Empty: no check.
+    pub keep_out: Vec<KeepOut>,
+}
+
+/// One circle of a gripper's keep-out footprint, in the template's pixels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KeepOut {
+    pub c: Pt,
+    pub r: f64,
 }
 
 /// Why an image cannot become a template.
@@ -98,6 +108,7 @@ impl Template {
             area: area.abs(),
             outline,
             segments,
+            keep_out: Vec::new(),
         })
     }
 
