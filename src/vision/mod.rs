@@ -425,7 +425,6 @@ impl Estimator {
         let smallest = self.lib.entries.iter().map(|e| e.diag).fold(f64::INFINITY, f64::min);
         let all_segments =
             lines::part_segments(p.line_detector, &coarse.small, &coarse.edges, coarse.factor, blob, p.min_segment_fraction * smallest)?;
-        let (w, h) = (frame.width() as f64, frame.height() as f64);
         let noise_level = if contrast > 0.0 { (noise / contrast).clamp(0.0, 1.0) } else { 1.0 };
         let lambda = p.lambda0 * (1.0 - p.alpha * noise_level);
         let mut out = Vec::with_capacity(ex.parts.len() + ex.leftover.len());
@@ -457,8 +456,7 @@ impl Estimator {
             let segments: Vec<Segment> = all_segments.iter().filter(|s| s.len() >= p.min_segment_fraction * diag).copied().collect();
             est.confidence = confidence(&tpl.segments, &segments, &pose, diag, lambda);
             let (lo, hi) = bounds(&est.outline);
-            let edge = 3.0;
-            let at_border = lo.x < edge || lo.y < edge || hi.x > w - 1.0 - edge || hi.y > h - 1.0 - edge;
+            let at_border = reaches_border(lo, hi, frame);
             est.detail = format!(
                 "found in a region of several parts: {} {} outline explained {:.3} (need {:.2}), on the region's outline {:.3}, rms {:.2} px, scale {:.3}, confidence {:.3}",
                 tpl.type_name, tpl.face, f.support, p.min_support, f.reg.coverage, f.reg.rms, pose.scale, est.confidence
@@ -579,8 +577,7 @@ impl Estimator {
         // A part cut by the frame edge has an outline running along it (the coarse region of a
         // whole part may reach the edge through the closing, so the refined outline decides).
         let (lo, hi) = bounds(&outline);
-        let edge = 3.0;
-        if lo.x < edge || lo.y < edge || hi.x > frame.width() as f64 - 1.0 - edge || hi.y > frame.height() as f64 - 1.0 - edge {
+        if reaches_border(lo, hi, frame) {
             est.reason = Reason::AtBorder;
             est.detail = format!("outline reaches the frame border (x {:.1}..{:.1}, y {:.1}..{:.1})", lo.x, hi.x, lo.y, hi.y);
             return Ok((est, contrast));
@@ -770,6 +767,13 @@ impl Estimator {
         est.reason = Reason::Ok;
         Ok((est, contrast))
     }
+}
+
+/// Whether an outline with bounds `lo`..`hi` comes within 3 px of the frame's edge: the part may
+/// be cut off there.
+fn reaches_border(lo: Pt, hi: Pt, frame: GrayView<'_>) -> bool {
+    let edge = 3.0;
+    lo.x < edge || lo.y < edge || hi.x > frame.width() as f64 - 1.0 - edge || hi.y > frame.height() as f64 - 1.0 - edge
 }
 
 /// Other material inside the part's keep-out footprint: the number of the decimated frame's edge
