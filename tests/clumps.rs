@@ -142,3 +142,77 @@ fn a_washer_in_the_gripper_footprint_means_no_clearance() {
     assert!(!blocked.parts.iter().any(|q| (q.x - c.x).hypot(q.y - c.y) < 60.0), "the washer is no result");
     assert!(blocked.debris >= 1, "the washer is counted as debris");
 }
+
+/// Two parts a few pixels apart (closer than the coarse stage's closing reaches, or just beyond
+/// it) are each a result with their own pose, whichever way the regions come out: none is lost.
+#[test]
+fn parts_a_few_pixels_apart_are_each_found() {
+    let (sim, est) = setup(808);
+    let a = sim.scene_with(0, "clean").unwrap();
+    let b = sim.scene_with(1, "clean").unwrap();
+    let whole = |img: &lfi_bridge::vision::frame::GrayImage| {
+        let fe = est.estimate(img.view().unwrap()).unwrap();
+        fe.parts.into_iter().find(|p| p.accepted).expect("the clean part is accepted")
+    };
+    let (pa, pb) = (whole(&a.image), whole(&b.image));
+    let (ta, tb) = (&a.truth.parts[0], &b.truth.parts[0]);
+    // Shortest distance between the two outlines with b's moved by (dx, dy).
+    let gap_at = |dx: f64, dy: f64| {
+        pa.outline.iter().flat_map(|p| pb.outline.iter().map(move |q| (p.x - q.x - dx).hypot(p.y - q.y - dy))).fold(f64::INFINITY, f64::min)
+    };
+    let (w, h) = (a.image.width as f64, a.image.height as f64);
+    let radius = |p: &PartEstimate| p.outline.iter().map(|q| (q.x - p.x).hypot(q.y - p.y)).fold(0.0, f64::max);
+    let reach = radius(&pa) + radius(&pb) + 20.0;
+    for gap in [4.0, 12.0, 20.0] {
+        // Place b beside a (to whichever side of it there is room), clear of it, and move it
+        // closer in steps of 4 px until the outlines are `gap` apart, then bisect.
+        let (dx, dy) = [(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)]
+            .into_iter()
+            .find_map(|(ux, uy): (f64, f64)| {
+                let shift = |s: f64| (pa.x + ux * s - pb.x, pa.y + uy * s - pb.y);
+                let mut lo = reach;
+                while lo > 0.0 && {
+                    let (x, y) = shift(lo - 4.0);
+                    gap_at(x, y) > gap
+                } {
+                    lo -= 4.0;
+                }
+                let mut hi = lo - 4.0;
+                for _ in 0..12 {
+                    let mid = 0.5 * (lo + hi);
+                    let (x, y) = shift(mid);
+                    if gap_at(x, y) > gap { lo = mid } else { hi = mid }
+                }
+                let (x, y) = shift(lo);
+                let inside = pb.outline.iter().all(|q| q.x + x > 10.0 && q.y + y > 10.0 && q.x + x < w - 10.0 && q.y + y < h - 10.0);
+                inside.then_some((x.round() as i64, y.round() as i64))
+            })
+            .expect("room beside the first part");
+        // The brighter of a's frame and b's frame moved: both parts on one belt.
+        let mut img = a.image.clone();
+        let (w, h) = (img.width as i64, img.height as i64);
+        for y in 0..h {
+            for x in 0..w {
+                let (sx, sy) = (x - dx, y - dy);
+                if sx >= 0 && sy >= 0 && sx < w && sy < h {
+                    let i = (y * w + x) as usize;
+                    img.data[i] = img.data[i].max(b.image.data[(sy * w + sx) as usize]);
+                }
+            }
+        }
+        let fe = est.estimate(img.view().unwrap()).unwrap();
+        for (t, (tx, ty)) in [(ta, (ta.x_px, ta.y_px)), (tb, (tb.x_px + dx as f64, tb.y_px + dy as f64))] {
+            let p =
+                at(&fe.parts, tx, ty).unwrap_or_else(|| panic!("gap {gap} px: no result for the {} at ({tx:.0}, {ty:.0})", t.type_name));
+            assert!(
+                p.accepted && right(p, t),
+                "gap {gap} px: {} {:?} {:?} {:.2}: {}",
+                p.reason,
+                p.type_name,
+                p.face,
+                p.angle_deg,
+                p.detail
+            );
+        }
+    }
+}

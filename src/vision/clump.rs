@@ -21,10 +21,24 @@ use opencv::prelude::*;
 
 use super::detect::{Blob, Coarse};
 use super::geometry::{
-    Pt, Similarity, angle_diff_deg, area_centroid, bounds, outward_normals, resample_closed, rotate_display, smooth_closed,
+    Pt, Similarity, angle_diff_deg, area_centroid, bounds, contains, outward_normals, resample_closed, rotate_display, smooth_closed,
 };
 use super::register::{self, OutlineIndex, Registration};
 use super::template::Library;
+
+/// Width below which a gap between two lobes of a template's outline is not verified, template
+/// pixels: about the reach of the outline's refinement (3 decimated pixels and 4 more at the
+/// usual decimation 4), within which the refined outline may as well bridge the gap as enter it.
+const NARROW_GAP: f64 = 16.0;
+
+/// Least cosine between a template point's normal and the region's outline there (and the
+/// offset between them) for a deviation beyond the tolerance to count as the same outline moved.
+const PARALLEL_COS: f64 = 0.9;
+
+/// The angles tried around a vote peak's: +-4 steps of 2 degrees, about a bin's width either
+/// way, leaving at most a degree (under 8 px at a 450 px radius) to the registration.
+const ANGLE_SEARCH: i32 = 4;
+const ANGLE_SEARCH_STEP: f64 = 2.0;
 
 /// Spacing of the voting points on both outlines, frame pixels: fine enough that a part's
 /// visible stretch casts dozens of votes, coarse enough that a pair of parts costs well under
@@ -68,7 +82,13 @@ impl ShapeModel {
         let fp = resample_closed(outline, VERIFY_SPACING);
         let fs = smooth_closed(&fp, 2);
         let fnm = outward_normals(&fs, 2);
-        let verify = fp.iter().copied().zip(fnm).collect();
+        // Where the outline runs into a narrow gap between two lobes of the part (a crevice, a
+        // slit beside a boss), the same part may show the gap or bridge it, depending on blur,
+        // light, tilt and the decimated closing: neither seeing nor missing it there says
+        // anything, so those points are not verified.
+        let coarse_poly = resample_closed(outline, 4.0);
+        let in_gap = |p: Pt, n: Pt| (1..=(NARROW_GAP / 2.0) as usize).any(|k| contains(&coarse_poly, p + n.scale(2.0 * k as f64)));
+        let verify = fp.iter().copied().zip(fnm).filter(|&(p, n)| !in_gap(p, n)).collect();
         let radius = outline.iter().map(|p| (*p - centroid).norm()).fold(0.0, f64::max);
         Self { vote, verify, radius }
     }
@@ -143,6 +163,17 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     for (ei, init, _) in hyps {
         let e = &lib.entries[ei];
         let tol = tolerance(ei);
+        // A mostly round part votes for its centroid from every rotation alike, and only its
+        // lobes tell the angle: the peak's angle may be several degrees off, beyond what the
+        // registration pulls in. A coarse look at the angles around it first.
+        let init = (-ANGLE_SEARCH..=ANGLE_SEARCH)
+            .map(|k| {
+                let mut pose = init;
+                pose.angle_rad += (k as f64 * ANGLE_SEARCH_STEP).to_radians();
+                (pose, verify(&e.shape, &pose, &ext, &edge, 2.0 * tol, 8).0)
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .map_or(init, |(pose, _)| pose);
         // Cheap looks first: most peaks are another part's outline voting by chance, or the
         // same part again, and end here before any registration.
         let duplicate = found.iter().any(|f| {
@@ -226,8 +257,15 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             let (si, sk) = (strength(&found[i].points, &ii), strength(&found[k].points, &kk));
             let m = edge.margin;
             // The most telling measure is how much of each outline shows as an edge at all; the
-            // means of the steps may only not both speak against it.
-            let on_top = |a: (f64, f64, f64), b: (f64, f64, f64)| a.2 >= 0.4 && a.2 >= b.2 + 0.2 && !(b.0 > a.0 + m && b.1 > a.1 + m);
+            // means of the steps may only not both speak against it. Two parts of one material
+            // and shade show the upper one's outline faintly; it still decides where the lower
+            // one's shows nothing at all and its mean step is larger by the margin.
+            let enough = ii.len().min(kk.len()) >= 20;
+            let on_top = |a: (f64, f64, f64), b: (f64, f64, f64)| {
+                let clear = a.2 >= 0.4 && a.2 >= b.2 + 0.2 && !(b.0 > a.0 + m && b.1 > a.1 + m);
+                let faint = enough && a.2 >= 0.15 && b.2 <= 0.05 && a.0 >= b.0 + m;
+                clear || faint
+            };
             if on_top(si, sk) {
                 found[k].under.get_or_insert(i);
                 over[i].extend(ii);
@@ -478,7 +516,15 @@ fn verify(model: &ShapeModel, pose: &Similarity, ext: &OutlineIndex, edge: &Edge
     for &(m, n) in model.verify.iter().step_by(stride) {
         let at = pose.apply(m);
         let nn = rotate_display(n, pose.angle_rad);
-        let on_region = ext.nearest(at, tol * pose.scale).is_some();
+        // Within the tolerance anywhere, or within twice it where the region's outline runs
+        // parallel to the template's, offset straight along the normal: a rounded part's
+        // silhouette moves with the light, and a cast part's arm is a few pixels thinner or
+        // bent by the part's tolerance and the lens, while the outline of whatever else lies
+        // there (a part across it, debris) runs its own way.
+        let on_region = ext.nearest(at, tol * pose.scale).is_some()
+            || ext
+                .nearest(at, 2.0 * tol * pose.scale)
+                .is_some_and(|(i, d, q)| ext.normal(i).dot(nn) >= PARALLEL_COS && (q - at).dot(nn).abs() >= PARALLEL_COS * d);
         let across = edge.across(at, nn);
         pts.push(Probe { at, seen: on_region || across.abs() >= edge.threshold, across });
     }

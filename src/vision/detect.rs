@@ -42,6 +42,30 @@ impl Blob {
     }
 }
 
+/// One piece of a closed region: the piece filled, dilated as the whole region was, and within
+/// the region's own mask.
+fn piece_mask(region: &Mat, piece: &Vector<Point>, kernel: &Mat, offset: Point) -> opencv::Result<Mat> {
+    let mut filled = Mat::new_rows_cols_with_default(region.rows(), region.cols(), core::CV_8UC1, core::Scalar::all(0.0))?;
+    let mut one: Vector<Vector<Point>> = Vector::new();
+    one.push(piece.clone());
+    imgproc::draw_contours(
+        &mut filled,
+        &one,
+        0,
+        core::Scalar::all(255.0),
+        imgproc::FILLED,
+        imgproc::LINE_8,
+        &core::no_array(),
+        i32::MAX,
+        offset,
+    )?;
+    let mut dilated = Mat::default();
+    imgproc::dilate(&filled, &mut dilated, kernel, Point::new(-1, -1), 1, core::BORDER_CONSTANT, core::Scalar::all(0.0))?;
+    let mut own = Mat::default();
+    core::bitwise_and(&dilated, region, &mut own, &core::no_array())?;
+    Ok(own)
+}
+
 /// What the coarse stage hands on.
 pub struct Coarse {
     /// Decimation factor (frame pixels per decimated pixel).
@@ -151,6 +175,7 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
     let mut contours: Vector<Vector<Point>> = Vector::new();
     imgproc::find_contours(&dilated, &mut contours, imgproc::RETR_EXTERNAL, imgproc::CHAIN_APPROX_NONE, Point::new(0, 0))?;
 
+    let touches = |r: Rect| r.x <= 1 || r.y <= 1 || r.x + r.width >= sw as i32 - 1 || r.y + r.height >= sh as i32 - 1;
     let min_coarse_area = p.min_area / (f * f) as f64;
     let min_coarse_debris = p.min_debris_area / (f * f) as f64;
     let mut blobs = Vec::new();
@@ -162,7 +187,7 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
             continue;
         }
         let r = imgproc::bounding_rect(&c)?;
-        let touches_border = r.x <= 1 || r.y <= 1 || r.x + r.width >= sw as i32 - 1 || r.y + r.height >= sh as i32 - 1;
+        let touches_border = touches(r);
         // Fill the dilated region and erode it back: the closing of the part's edge map.
         let m = 2 + p.closing;
         let mut mask = Mat::new_rows_cols_with_default(r.height + 2 * m, r.width + 2 * m, core::CV_8UC1, core::Scalar::all(0.0))?;
@@ -183,22 +208,84 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
         imgproc::erode(&mask, &mut closed, &kernel, Point::new(-1, -1), 1, core::BORDER_CONSTANT, core::Scalar::all(0.0))?;
         let mut inner: Vector<Vector<Point>> = Vector::new();
         imgproc::find_contours(&closed, &mut inner, imgproc::RETR_EXTERNAL, imgproc::CHAIN_APPROX_NONE, Point::new(r.x - m, r.y - m))?;
-        let Some(best) = inner.iter().max_by(|a, b| {
-            let aa = imgproc::contour_area(a, false).unwrap_or(0.0);
-            let bb = imgproc::contour_area(b, false).unwrap_or(0.0);
-            aa.total_cmp(&bb)
-        }) else {
-            continue;
-        };
-        if best.len() < 8 {
-            continue;
+        // Parts that lie within the closing's reach of each other share one dilated region
+        // and come apart again in the erosion: each piece is a region of its own (keeping only
+        // the largest lost the others without a word), with its own share of the mask.
+        let pieces: Vec<(Vector<Point>, f64)> = inner
+            .iter()
+            .filter(|c| c.len() >= 8)
+            .map(|c| {
+                let a = imgproc::contour_area(&c, false).unwrap_or(0.0);
+                (c, a)
+            })
+            .collect();
+        let sizeable = pieces.iter().filter(|(_, a)| *a >= min_coarse_area).count();
+        for (c, a) in pieces {
+            if a < min_coarse_area {
+                // A fragment the closing cut off a part's region: debris only when it is one.
+                debris += (sizeable > 1 && a >= min_coarse_debris) as usize;
+                continue;
+            }
+            let outline: Vec<Pt> = c.iter().map(|q| Pt::new(to_frame(q.x, f), to_frame(q.y, f))).collect();
+            let (area, _) = area_centroid(&outline);
+            if area.abs() < p.min_area {
+                continue;
+            }
+            let own = if sizeable > 1 { piece_mask(&mask, &c, &kernel, Point::new(m - r.x, m - r.y))? } else { mask.try_clone()? };
+            let (own_rect, at_border) = if sizeable > 1 {
+                let b = imgproc::bounding_rect(&c)?;
+                let (x0, y0) = ((b.x - p.closing).max(r.x), (b.y - p.closing).max(r.y));
+                let (x1, y1) = ((b.x + b.width + p.closing).min(r.x + r.width), (b.y + b.height + p.closing).min(r.y + r.height));
+                let own = Rect::new(x0, y0, x1 - x0, y1 - y0);
+                (own, touches(own))
+            } else {
+                (r, touches_border)
+            };
+            blobs.push(Blob {
+                outline,
+                area: area.abs(),
+                touches_border: at_border,
+                coarse_rect: own_rect,
+                mask: own,
+                mask_origin: Point::new(r.x - m, r.y - m),
+            });
         }
-        let outline: Vec<Pt> = best.iter().map(|q| Pt::new(to_frame(q.x, f), to_frame(q.y, f))).collect();
-        let (a, _) = area_centroid(&outline);
-        if a.abs() < p.min_area {
-            continue;
-        }
-        blobs.push(Blob { outline, area: a.abs(), touches_border, coarse_rect: r, mask, mask_origin: Point::new(r.x - m, r.y - m) });
     }
     Ok(Coarse { factor: f, small, blurred, edges, blobs, debris })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vision::frame::GrayImage;
+
+    /// Two plates whose corners come within the closing's reach: the closing joins them over a
+    /// narrow neck and its erosion parts them again. Each is a region with its own mask;
+    /// neither is dropped (keeping only the larger lost the other without a word).
+    #[test]
+    fn pieces_the_closing_parts_again_are_each_a_region() {
+        let (w, h) = (1200, 1100);
+        let mut img = GrayImage::new(w, h, 50);
+        let mut fill = |x0: usize, x1: usize, y0: usize, y1: usize| {
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    img.data[y * w + x] = 180;
+                }
+            }
+        };
+        fill(150, 500, 200, 600);
+        fill(510, 900, 610, 950);
+        let p = DetectParams { factor: 4, blur_sigma: 1.5, canny_low_ratio: 0.4, closing: 5, min_area: 20_000.0, min_debris_area: 500.0 };
+        let c = detect(img.view().unwrap(), &p).unwrap();
+        let mut areas: Vec<f64> = c.blobs.iter().map(|b| b.area).collect();
+        areas.sort_by(f64::total_cmp);
+        assert_eq!(areas.len(), 2, "regions {areas:?}");
+        assert!((areas[0] - 390.0 * 340.0).abs() < 0.1 * 390.0 * 340.0, "the smaller plate: {areas:?}");
+        assert!((areas[1] - 350.0 * 400.0).abs() < 0.1 * 350.0 * 400.0, "the larger plate: {areas:?}");
+        // Each mask holds its own plate and not the other's.
+        let (small, large) = if c.blobs[0].area < c.blobs[1].area { (&c.blobs[0], &c.blobs[1]) } else { (&c.blobs[1], &c.blobs[0]) };
+        let (in_small, in_large) = (Pt::new(705.0, 780.0), Pt::new(325.0, 400.0));
+        assert!(small.covers(in_small, c.factor) && !small.covers(in_large, c.factor));
+        assert!(large.covers(in_large, c.factor) && !large.covers(in_small, c.factor));
+    }
 }

@@ -93,6 +93,11 @@ impl OutlineIndex {
         &self.pts
     }
 
+    /// Outward unit normal of segment `i` (as returned by [`OutlineIndex::nearest`]).
+    pub fn normal(&self, i: usize) -> Pt {
+        self.normals[i]
+    }
+
     /// Nearest segment to `q` within `reach` (at most [`MAX_REACH`]): (segment, distance, foot).
     pub fn nearest(&self, q: Pt, reach: f64) -> Option<(usize, f64, Pt)> {
         let grid = if reach <= self.near.reach { &self.near } else { &self.far };
