@@ -12,7 +12,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use lfi_bridge::config::Config;
-use lfi_bridge::modbus::map::{addr, status};
+use lfi_bridge::registers::{addr, status};
 use tokio_modbus::prelude::*;
 
 fn pct(v: &mut [f64], q: f64) -> f64 {
@@ -63,7 +63,7 @@ fn main() {
     let cfg = Config::from_toml(text, Path::new("bench.toml")).unwrap();
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
     rt.block_on(async move {
-        let running = lfi_bridge::appliance::start(&cfg).await.expect("appliance starts");
+        let running = lfi_bridge::start(&cfg).await.expect("appliance starts");
         let a = running.modbus_addr;
         let mut ctx = tcp::connect_slave(a, Slave(1)).await.unwrap();
         let (mut lat, mut est) = (Vec::new(), Vec::new());

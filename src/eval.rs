@@ -92,7 +92,10 @@ pub struct Report {
     pub false_accept_details: Vec<String>,
 }
 
-fn percentile(v: &[f64], q: f64) -> f64 {
+/// The `q` quantile of `v` (0..=1), interpolated between the nearest ranks; NaN when `v` is
+/// empty. The one percentile of the crate: the evaluation's tables and the operator view's
+/// cycle times and metrics alike.
+pub fn percentile(v: &[f64], q: f64) -> f64 {
     if v.is_empty() {
         return f64::NAN;
     }

@@ -8,7 +8,7 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
-use crate::modbus::map::{self, addr, error_code, robot_status, status};
+use crate::registers::{self as map, RobotView, addr, error_code, i16_word, status, u16_word};
 use crate::vision::Reason;
 
 /// One part's result as the PLC sees it, in the robot frame.
@@ -30,8 +30,27 @@ pub struct PartResult {
 pub enum Outcome {
     /// The frame was estimated; parts in picking order (empty: no part on the belt).
     Parts { parts: Vec<PartResult>, processing_ms: f64 },
-    /// No frame, or an unusable one; `code` is an ERROR_CODE value.
-    Failed { code: u16 },
+    /// No frame, or an unusable one.
+    Failed { fault: Fault },
+}
+
+/// Why an acquisition gave no frame to estimate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Fault {
+    /// The camera gave no frame (ERROR_CODE 1).
+    Camera,
+    /// A frame came and could not be used (ERROR_CODE 2).
+    Frame,
+}
+
+impl Fault {
+    /// The ERROR_CODE register's value for it.
+    pub fn code(self) -> u16 {
+        match self {
+            Fault::Camera => error_code::CAMERA,
+            Fault::Frame => error_code::FRAME,
+        }
+    }
 }
 
 /// What the appliance must do after an event.
@@ -49,7 +68,7 @@ pub enum WordOrder {
     LowFirst,
 }
 
-/// A queued result.
+/// A result of an acquisition, as queued for the PLC (`seq` 0: the queue was full, dropped).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Queued {
     pub seq: u16,
@@ -61,18 +80,11 @@ pub struct Queued {
     pub processing_ms: f64,
 }
 
-/// The robot link's state as shown in registers 110..118.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct RobotView {
-    pub bits: u16,
-    pub queue: u16,
-    pub delivered: u16,
-    pub ack_timeouts: u16,
-    pub wrong_acks: u16,
-    pub reconnects: u16,
-    pub dropped: u16,
-    pub data_seq: u16,
-    pub ack_seq: u16,
+impl Queued {
+    /// A part on the belt, as opposed to a no-part or frame-error result.
+    pub fn is_part(&self) -> bool {
+        self.index > 0
+    }
 }
 
 /// Counters the operator sees beside the registers.
@@ -122,20 +134,13 @@ pub struct Handshake {
     counters: Counters,
 }
 
-fn sat_u16(v: f64) -> u16 {
-    v.round().clamp(0.0, 65535.0) as u16
-}
-fn sat_i16(v: f64) -> u16 {
-    (v.round().clamp(-32768.0, 32767.0) as i16) as u16
-}
-
 /// Angle in degrees to the ANGLE register: 0.01 deg, -18000..17999.
 pub fn angle_word(deg: f64) -> u16 {
     let mut a = (deg + 180.0).rem_euclid(360.0) - 180.0;
     if (a * 100.0).round() >= 18000.0 {
         a -= 360.0;
     }
-    sat_i16(a * 100.0)
+    i16_word(a * 100.0)
 }
 
 impl Handshake {
@@ -169,6 +174,12 @@ impl Handshake {
     /// READY = ONLINE and not BUSY and CAMERA_OK (a full queue does not clear it).
     pub fn ready(&self) -> bool {
         self.online && self.busy.is_none() && self.camera_ok
+    }
+
+    /// Whether a frame taken now could be used: ready and no error waiting to be cleared (a
+    /// free-running camera leaves frames in its inbox meanwhile rather than consume them unseen).
+    pub fn can_acquire(&self) -> bool {
+        self.ready() && !self.error
     }
 
     pub fn status(&self) -> u16 {
@@ -257,15 +268,15 @@ impl Handshake {
                     addr::TYPE_ID => p.type_id,
                     addr::FACE => p.face,
                     addr::ANGLE => angle_word(p.angle_deg),
-                    addr::X => sat_i16(p.x_mm * 10.0),
-                    addr::Y => sat_i16(p.y_mm * 10.0),
-                    addr::CONFIDENCE => sat_u16(p.confidence * 1000.0).min(1000),
+                    addr::X => i16_word(p.x_mm * 10.0),
+                    addr::Y => i16_word(p.y_mm * 10.0),
+                    addr::CONFIDENCE => u16_word(p.confidence * 1000.0).min(1000),
                     addr::PART_INDEX => q.index,
                     addr::PART_COUNT => q.count,
                     212 | 213 => float(((p.angle_deg + 180.0).rem_euclid(360.0) - 180.0) as f32, a == 213),
                     214 | 215 => float(p.x_mm as f32, a == 215),
                     216 | 217 => float(p.y_mm as f32, a == 217),
-                    addr::PROCESSING_TIME => sat_u16(q.processing_ms * 10.0),
+                    addr::PROCESSING_TIME => u16_word(q.processing_ms * 10.0),
                     _ => 0,
                 }
             }
@@ -353,10 +364,15 @@ impl Handshake {
         self.debris = count.min(65535) as u16;
     }
 
-    pub fn complete(&mut self, acq_id: u16, outcome: Outcome, now: Duration) {
-        let Some((busy_id, started)) = self.busy else { return };
+    ///
+    /// Returns the frame's final results as the PLC gets them (after the expected-type rule, in
+    /// picking order, a no-part or frame-error result included), whether the queue had room for
+    /// them or not: the one truth every other consumer (robot, page, counters, log) takes. Empty
+    /// when `acq_id` is not the acquisition running.
+    pub fn complete(&mut self, acq_id: u16, outcome: Outcome, now: Duration) -> Vec<Queued> {
+        let Some((busy_id, started)) = self.busy else { return Vec::new() };
         if busy_id != acq_id {
-            return;
+            return Vec::new();
         }
         let mut results: Vec<Queued> = Vec::new();
         match outcome {
@@ -373,13 +389,13 @@ impl Handshake {
                     results.push(Queued { seq: 0, acq_id, part: p, index: (i + 1).min(65535) as u16, count, processing_ms });
                 }
             }
-            Outcome::Failed { code } => {
+            Outcome::Failed { fault } => {
                 self.error = true;
-                self.error_code = code;
+                self.error_code = fault.code();
                 results.push(Queued { seq: 0, acq_id, part: no_part(Reason::FrameError), index: 0, count: 0, processing_ms: 0.0 });
             }
         }
-        for mut r in results {
+        for r in results.iter_mut() {
             if self.queue.len() >= self.settings.queue_depth {
                 self.overrun = true;
                 self.overrun_count = self.overrun_count.wrapping_add(1);
@@ -389,10 +405,11 @@ impl Handshake {
             r.seq = self.next_seq;
             self.next_seq = if self.next_seq == u16::MAX { 1 } else { self.next_seq + 1 };
             self.counters.results += 1;
-            self.queue.push_back(r);
+            self.queue.push_back(r.clone());
         }
-        self.last_cycle = sat_u16(now.saturating_sub(started).as_secs_f64() * 1e4);
+        self.last_cycle = u16_word(now.saturating_sub(started).as_secs_f64() * 1e4);
         self.busy = None;
+        results
     }
 
     pub fn set_camera_ok(&mut self, ok: bool) {
@@ -426,24 +443,6 @@ impl Handshake {
 
 fn no_part(reason: Reason) -> PartResult {
     PartResult { accepted: false, reason, type_id: 0, face: 0, angle_deg: 0.0, x_mm: 0.0, y_mm: 0.0, confidence: 0.0 }
-}
-
-/// Robot-link bits for [`RobotView::bits`].
-pub fn robot_bits(configured: bool, connected: bool, waiting: bool, timed_out: bool, ready: bool, fault: bool) -> u16 {
-    let mut b = 0;
-    for (on, bit) in [
-        (configured, robot_status::CONFIGURED),
-        (connected, robot_status::CONNECTED),
-        (waiting, robot_status::WAITING_ACK),
-        (timed_out, robot_status::ACK_TIMEOUT),
-        (ready, robot_status::ROBOT_READY),
-        (fault, robot_status::ROBOT_FAULT),
-    ] {
-        if on {
-            b |= bit;
-        }
-    }
-    b
 }
 
 #[cfg(test)]

@@ -15,7 +15,19 @@ pub mod imageio;
 pub mod kb;
 pub mod modbus;
 pub mod overlay;
+pub mod registers;
 pub mod robot;
 pub mod sim;
 pub mod truth;
 pub mod vision;
+
+/// Starts the whole appliance: cameras, the PLC's Modbus server and the robot links
+/// ([`appliance::start`]), then the operator view when `[http]` is configured
+/// ([`http::attach`]). The one place both are wired: the appliance knows no HTTP.
+pub async fn start(cfg: &config::Config) -> Result<appliance::Running, appliance::StartError> {
+    let mut running = appliance::start(cfg).await?;
+    if let Some(h) = &cfg.http {
+        http::attach(&mut running, h).await?;
+    }
+    Ok(running)
+}

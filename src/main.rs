@@ -138,7 +138,7 @@ fn main() -> ExitCode {
     let result = match cli.cmd {
         Cmd::Run { config } => run(&config),
         Cmd::RegisterMap => {
-            print!("{}{}", lfi_bridge::modbus::map::markdown(), lfi_bridge::robot::markdown());
+            print!("{}{}", lfi_bridge::registers::markdown(), lfi_bridge::robot::markdown());
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Enroll { kb, type_name, id, face, origin, keep_out, image } => enroll(&kb, &type_name, id, face, origin, keep_out, &image),
@@ -167,7 +167,7 @@ fn run(config: &Path) -> Result<ExitCode> {
     tracing::info!("lfi-bridge {} starting with {}", env!("CARGO_PKG_VERSION"), config.display());
     let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build().context("cannot start the async runtime")?;
     rt.block_on(async {
-        let running = lfi_bridge::appliance::start(&cfg).await?;
+        let running = lfi_bridge::start(&cfg).await?;
         tracing::info!("ready: PLC registers on {} (see register-map.md); stop with Ctrl-C or SIGTERM", running.modbus_addr);
         wait_for_signal().await;
         tracing::info!("stopping");
@@ -327,7 +327,7 @@ fn estimate(kb_path: &Path, json: bool, overlay_dir: Option<&Path>, repeat: usiz
         match outcome {
             Ok((fe, ms)) => {
                 for p in &fe.parts {
-                    tracing::debug!(image = %shown, reason = %p.reason, "{}", p.detail);
+                    tracing::debug!(image = %shown, reason = %p.reason, "{}", p.detail());
                 }
                 if json {
                     let rec = EstimateRecord {
@@ -363,7 +363,7 @@ fn estimate(kb_path: &Path, json: bool, overlay_dir: Option<&Path>, repeat: usiz
                             if p.accepted { "ACCEPT" } else { "REJECT: " },
                             if p.accepted { "" } else { p.reason.as_str() }
                         );
-                        println!("      {}", p.detail);
+                        println!("      {}", p.detail());
                     }
                 }
             }

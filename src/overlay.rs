@@ -88,3 +88,19 @@ pub fn draw(frame: GrayView<'_>, est: &FrameEstimate, estimator: &Estimator, sca
     }
     Ok(img)
 }
+
+/// A thumbnail of a template, `size` pixels square: its outline filled and its line features
+/// drawn (the knowledge base keeps features, not pictures).
+pub fn thumbnail(t: &crate::vision::Template, size: i32) -> opencv::Result<Mat> {
+    let (lo, hi) = crate::vision::geometry::bounds(&t.outline);
+    let s = (size as f64 - 16.0) / (hi.x - lo.x).max(hi.y - lo.y).max(1.0);
+    let at = |x: f64, y: f64| Point::new(((x - lo.x) * s + 8.0) as i32, ((y - lo.y) * s + 8.0) as i32);
+    let mut img = Mat::new_rows_cols_with_default(size, size, core::CV_8UC3, Scalar::new(40.0, 40.0, 40.0, 0.0))?;
+    let mut poly = core::Vector::<core::Vector<Point>>::new();
+    poly.push(t.outline.iter().map(|p| at(p.x, p.y)).collect());
+    imgproc::fill_poly(&mut img, &poly, Scalar::new(150.0, 150.0, 150.0, 0.0), imgproc::LINE_AA, 0, Point::new(0, 0))?;
+    for sg in &t.segments {
+        imgproc::line(&mut img, at(sg.a.x, sg.a.y), at(sg.b.x, sg.b.y), Scalar::new(0.0, 200.0, 255.0, 0.0), 1, imgproc::LINE_AA, 0)?;
+    }
+    Ok(img)
+}

@@ -122,7 +122,7 @@ fn a_washer_in_the_gripper_footprint_means_no_clearance() {
     assert!(
         clear.parts.iter().any(|p| p.accepted),
         "an empty footprint must not reject: {:?}",
-        clear.parts.iter().map(|p| &p.detail).collect::<Vec<_>>()
+        clear.parts.iter().map(|p| p.detail()).collect::<Vec<_>>()
     );
     // A washer (ring 10..22 px) at the footprint's centre.
     let mut img = scene.image.clone();
@@ -137,7 +137,12 @@ fn a_washer_in_the_gripper_footprint_means_no_clearance() {
     }
     let blocked = guarded.estimate(img.view().unwrap()).unwrap();
     let p = blocked.parts.iter().find(|p| (p.x - part.x).hypot(p.y - part.y) < 10.0).expect("the part is still found");
-    assert_eq!(p.reason, Reason::NoClearance, "{}", p.detail);
+    assert_eq!(p.reason, Reason::NoClearance, "{}", p.detail());
+    assert!(
+        matches!(p.decision.verdict, lfi_bridge::vision::decide::Verdict::NoClearance { edge_px } if edge_px >= 3),
+        "{:?}",
+        p.decision.verdict
+    );
     assert!(!p.accepted);
     assert!(!blocked.parts.iter().any(|q| (q.x - c.x).hypot(q.y - c.y) < 60.0), "the washer is no result");
     assert!(blocked.debris >= 1, "the washer is counted as debris");
@@ -211,7 +216,7 @@ fn parts_a_few_pixels_apart_are_each_found() {
                 p.type_name,
                 p.face,
                 p.angle_deg,
-                p.detail
+                p.detail()
             );
         }
     }

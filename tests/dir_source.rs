@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use common::appliance::*;
 use lfi_bridge::config::Config;
-use lfi_bridge::modbus::map::{addr, status};
+use lfi_bridge::registers::{addr, status};
 use lfi_bridge::sim::{SimConfig, Simulator};
 
 fn dir_config(inbox: &Path, trigger: &str) -> Config {

@@ -5,8 +5,8 @@ mod common;
 
 use std::time::Duration;
 
-use lfi_bridge::handshake::{Command, Handshake, Outcome, PartResult, Settings, WordOrder};
-use lfi_bridge::modbus::map::{addr, error_code, status};
+use lfi_bridge::handshake::{Command, Fault, Handshake, Outcome, PartResult, Settings, WordOrder};
+use lfi_bridge::registers::{addr, error_code, status};
 use lfi_bridge::vision::Reason;
 
 fn hs(depth: usize) -> Handshake {
@@ -102,7 +102,7 @@ fn a_trigger_while_busy_offline_or_in_error_is_missed() {
     assert_eq!(h.word(addr::MISSED_TRIGGERS), 2);
     h.write(addr::ONLINE, 1, ms(8));
     let id = trigger(&mut h, 9).unwrap();
-    h.complete(id, Outcome::Failed { code: error_code::CAMERA }, ms(10));
+    h.complete(id, Outcome::Failed { fault: Fault::Camera }, ms(10));
     assert_eq!(trigger(&mut h, 11), None, "in ERROR");
     assert_eq!(h.word(addr::MISSED_TRIGGERS), 3);
 }
@@ -111,7 +111,7 @@ fn a_trigger_while_busy_offline_or_in_error_is_missed() {
 fn a_camera_fault_sets_error_queues_a_frame_error_and_clear_error_clears_it() {
     let mut h = hs(8);
     let id = trigger(&mut h, 0).unwrap();
-    h.complete(id, Outcome::Failed { code: error_code::FRAME }, ms(3));
+    h.complete(id, Outcome::Failed { fault: Fault::Frame }, ms(3));
     assert!(h.word(addr::STATUS) & status::ERROR != 0);
     assert_eq!(h.word(addr::ERROR_CODE), error_code::FRAME);
     assert_eq!((h.word(addr::DECISION), h.word(addr::REASON)), (2, Reason::FrameError.code()));
@@ -168,11 +168,42 @@ fn expected_type_turns_other_types_into_wrong_type_rejects() {
 }
 
 #[test]
+fn complete_returns_the_final_results_every_consumer_takes() {
+    let mut h = hs(1);
+    h.write(addr::EXPECTED_TYPE, 2, ms(0));
+    let id = trigger(&mut h, 0).unwrap();
+    let done = h.complete(id, Outcome::Parts { parts: vec![part(2, 1.0), part(3, 2.0)], processing_ms: 1.0 }, ms(1));
+    let got: Vec<_> = done.iter().map(|r| (r.seq, r.index, r.count, r.part.accepted, r.part.reason, r.is_part())).collect();
+    // The queue holds one: the second result is made (and returned) but dropped for the PLC.
+    assert_eq!(got, vec![(1, 1, 2, true, Reason::Ok, true), (0, 2, 2, false, Reason::WrongType, true)]);
+    h.write(addr::RESULT_ACK, 1, ms(2));
+    let id = trigger(&mut h, 3).unwrap();
+    let none = h.complete(id, Outcome::Parts { parts: vec![], processing_ms: 1.0 }, ms(4));
+    assert_eq!((none.len(), none[0].is_part(), none[0].part.reason), (1, false, Reason::NoPart));
+    assert!(h.complete(id, Outcome::Parts { parts: vec![part(2, 1.0)], processing_ms: 1.0 }, ms(5)).is_empty(), "not running");
+}
+
+#[test]
+fn a_fault_names_its_error_code_and_stops_acquiring_until_cleared() {
+    for (fault, code) in [(Fault::Camera, error_code::CAMERA), (Fault::Frame, error_code::FRAME)] {
+        let mut h = hs(8);
+        assert!(h.can_acquire());
+        let id = trigger(&mut h, 0).unwrap();
+        assert!(!h.can_acquire(), "busy");
+        h.complete(id, Outcome::Failed { fault }, ms(1));
+        assert_eq!(h.word(addr::ERROR_CODE), code);
+        assert!(h.ready() && !h.can_acquire(), "{fault:?}: ready, but a frame now would be consumed unseen");
+        h.write(addr::CLEAR_ERROR, 1, ms(2));
+        assert!(h.can_acquire());
+    }
+}
+
+#[test]
 fn heartbeat_floats_and_stale_reports() {
     let mut h = Handshake::new(Settings { queue_depth: 4, online: true, word_order: WordOrder::LowFirst, types_enrolled: 3 });
     h.tick(Duration::from_millis(65_537_500));
     assert_eq!(h.word(addr::HEARTBEAT), 1, "65537 s wraps to 1");
-    assert_eq!(h.word(addr::MAP_VERSION), lfi_bridge::modbus::map::MAP_VERSION);
+    assert_eq!(h.word(addr::MAP_VERSION), lfi_bridge::registers::MAP_VERSION);
     assert_eq!(h.word(addr::TYPES_ENROLLED), 3);
     let id = trigger(&mut h, 0).unwrap();
     h.complete(id + 7, Outcome::Parts { parts: vec![part(1, 1.0)], processing_ms: 1.0 }, ms(1));
@@ -184,7 +215,7 @@ fn heartbeat_floats_and_stale_reports() {
 
 mod over_tcp {
     use super::common::appliance::*;
-    use lfi_bridge::modbus::map::{addr, status};
+    use lfi_bridge::registers::{addr, status};
     use std::time::Duration;
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -8,7 +8,7 @@ use std::net::SocketAddr;
 use std::time::Duration;
 
 use common::appliance::*;
-use lfi_bridge::modbus::map::{self, addr, status};
+use lfi_bridge::registers::{self as map, addr, status};
 
 /// A minimal HTTP/1.1 client: (status, content type, body).
 fn http(addr: SocketAddr, method: &str, path: &str, headers: &[(&str, &str)], body: &str) -> (u16, String, Vec<u8>) {

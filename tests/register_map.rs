@@ -7,18 +7,30 @@ use std::io::{Read, Write};
 use std::time::Duration;
 
 use common::appliance::*;
-use lfi_bridge::modbus::map::{self, Access, MAP, addr, status};
+use lfi_bridge::registers::{self as map, Access, MAP, addr, status};
 use tokio_modbus::ExceptionCode;
 use tokio_modbus::prelude::*;
 
+/// The whole document, robot section included, is what `lfi-bridge register-map` prints. After
+/// a change to the table, refresh it with `LFI_BLESS=1 cargo test --test register_map`.
 #[test]
 fn register_map_md_is_generated_from_the_table() {
-    let doc = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/register-map.md")).expect("register-map.md exists");
-    let generated = map::markdown();
-    assert!(
-        doc.starts_with(&generated),
-        "register-map.md differs from `lfi-bridge register-map`; regenerate it:\n  cargo run -- register-map > register-map.md  (then re-append the robot section)"
-    );
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/register-map.md");
+    let generated = format!("{}{}", map::markdown(), lfi_bridge::robot::markdown());
+    if std::env::var_os("LFI_BLESS").is_some() {
+        std::fs::write(path, &generated).expect("register-map.md written");
+    }
+    let doc = std::fs::read_to_string(path).expect("register-map.md exists");
+    if doc != generated {
+        let line =
+            doc.lines().zip(generated.lines()).position(|(a, b)| a != b).unwrap_or(doc.lines().count().min(generated.lines().count()));
+        panic!(
+            "register-map.md differs from `lfi-bridge register-map` from line {}:\n  document:  {:?}\n  generated: {:?}\nrefresh it: LFI_BLESS=1 cargo test --test register_map",
+            line + 1,
+            doc.lines().nth(line),
+            generated.lines().nth(line)
+        );
+    }
 }
 
 /// The codes the estimator can give are the codes the map documents (MAP_VERSION 2: covered,

@@ -9,8 +9,10 @@ use std::time::Duration;
 use common::appliance::{cycle, plc, read, start};
 use common::fanuc::{Fanuc, Picked, Program, tp_program};
 use lfi_bridge::config::{RobotConfig, RobotSend};
-use lfi_bridge::handshake::{PartResult, RobotView};
-use lfi_bridge::modbus::map::robot_status;
+use lfi_bridge::handshake::PartResult;
+use lfi_bridge::registers::RobotView;
+use lfi_bridge::registers::robot_status;
+use lfi_bridge::robot::{Action, Link};
 use lfi_bridge::vision::Reason;
 use tokio_util::sync::CancellationToken;
 
@@ -138,64 +140,131 @@ async fn a_robot_restart_mid_stream_loses_and_repeats_nothing() {
     check_in_order(&picked, 120);
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn nothing_is_written_while_the_robot_is_not_ready() {
-    let r = rig(Duration::from_millis(1), Duration::from_secs(5), Duration::from_secs(5)).await;
-    tokio::time::sleep(Duration::from_millis(50)).await;
-    r.fanuc.set_output(OUT as usize, 0);
+// The protocol itself, as scripts on a virtual clock: no sockets, no sleeping.
+
+const READY: u16 = lfi_bridge::robot::output::READY;
+
+fn ms(v: u64) -> Duration {
+    Duration::from_millis(v)
+}
+
+/// The part writes among `actions`: (DATA_SEQ, words 1..=7).
+fn sends(actions: &[Action]) -> Vec<(u16, [u16; 7])> {
+    actions.iter().filter_map(|a| if let Action::Send { seq, words } = a { Some((*seq, *words)) } else { None }).collect()
+}
+
+#[test]
+fn nothing_is_written_while_the_robot_is_not_ready() {
+    let mut link = Link::new(10, Duration::from_secs(5));
+    link.on_connected(ms(0));
     for i in 0..3 {
-        r.tx.send((0, part(i))).unwrap();
+        assert!(link.enqueue(part(i)));
     }
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    assert_eq!(r.fanuc.inputs()[IN as usize], 0, "no DATA_SEQ while not ready");
-    assert_eq!(r.view().queue, 3);
-    assert!(r.view().bits & robot_status::ROBOT_READY == 0);
-    r.fanuc.set_output(OUT as usize, 1);
-    r.until("delivered once ready", Duration::from_secs(10), |v| v.delivered == 3).await;
-    let (picked, _) = r.finish().await;
-    check_in_order(&picked, 3);
+    for t in 0..60 {
+        assert_eq!(link.on_outputs(0, 0, ms(5 * t)), None, "no DATA_SEQ while not ready");
+    }
+    assert_eq!(link.view().queue, 3);
+    assert!(link.view().bits & robot_status::ROBOT_READY == 0);
+    // A fault with ready set holds the parts back too.
+    assert_eq!(link.on_outputs(READY | lfi_bridge::robot::output::FAULT, 0, ms(300)), None);
+    let Some(Action::Send { seq, words }) = link.on_outputs(READY, 0, ms(305)) else { panic!("ready: the first part goes") };
+    assert_eq!((seq, words[0], words[1]), (1, part(0).type_id, part(0).face));
+    assert!(link.view().bits & robot_status::ROBOT_READY != 0);
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn an_ack_timeout_is_flagged_and_the_part_kept() {
-    // The robot picks for 600 ms; the appliance allows 200 ms.
-    let r = rig(Duration::from_millis(600), Duration::from_millis(200), Duration::from_secs(5)).await;
-    r.tx.send((0, part(0))).unwrap();
-    r.tx.send((0, part(1))).unwrap();
-    r.until("timeout flagged", Duration::from_secs(5), |v| v.bits & robot_status::ACK_TIMEOUT != 0).await;
-    let v = r.view();
-    assert_eq!(v.ack_timeouts, 1);
-    assert_eq!(v.delivered, 0);
-    assert_eq!(r.fanuc.inputs()[IN as usize], v.data_seq, "no different part was sent");
-    r.until("both delivered", Duration::from_secs(10), |v| v.delivered == 2).await;
-    assert_eq!(r.view().bits & robot_status::ACK_TIMEOUT, 0, "cleared by the acknowledgement");
-    let (picked, _) = r.finish().await;
-    check_in_order(&picked, 2);
+#[test]
+fn an_ack_timeout_is_flagged_once_and_the_part_kept() {
+    let mut link = Link::new(10, ms(200));
+    link.on_connected(ms(0));
+    link.enqueue(part(0));
+    link.enqueue(part(1));
+    let first = link.on_outputs(READY, 0, ms(0)).expect("the first part is written");
+    let Action::Send { seq, .. } = first else { panic!("{first:?}") };
+    // The deadline is the first moment that needs the time (after the heartbeat due at once).
+    assert_eq!(link.handle_timeout(ms(0)), vec![Action::Heartbeat { value: 1 }]);
+    assert_eq!(link.poll_timeout(), Some(ms(200)));
+    assert!(link.handle_timeout(ms(200)).is_empty(), "not overdue at the deadline itself");
+    assert_eq!(link.on_outputs(READY, 0, ms(150)), None, "nothing else while one is in flight");
+    let late = link.handle_timeout(ms(201));
+    assert_eq!(late, vec![Action::ReportAckTimeout { seq, waited: ms(201) }]);
+    let v = link.view();
+    assert!(v.bits & robot_status::ACK_TIMEOUT != 0);
+    assert_eq!((v.ack_timeouts, v.delivered, v.data_seq), (1, 0, seq));
+    // Flagged once: later looks neither count nor report it again, nor send another part.
+    assert!(link.handle_timeout(ms(400)).iter().all(|a| !matches!(a, Action::ReportAckTimeout { .. })));
+    assert_eq!(link.on_outputs(READY, 0, ms(500)), None);
+    assert_eq!(link.view().ack_timeouts, 1);
+    // The acknowledgement clears the flag and lets the next part go.
+    let next = link.on_outputs(READY, seq, ms(600));
+    assert_eq!(sends(&next.into_iter().collect::<Vec<_>>()).len(), 1);
+    let v = link.view();
+    assert_eq!((v.delivered, v.bits & robot_status::ACK_TIMEOUT, v.data_seq), (1, 0, seq + 1));
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_wrong_ack_is_ignored_and_counted() {
-    let r = rig(Duration::from_millis(1), Duration::from_secs(5), Duration::from_secs(5)).await;
-    r.stop_robot.cancel();
-    let _ = tokio::time::timeout(Duration::from_secs(2), async {
-        while !r.robot.is_finished() {
-            tokio::time::sleep(Duration::from_millis(5)).await
+#[test]
+fn a_wrong_ack_is_ignored_and_counted() {
+    let mut link = Link::new(10, Duration::from_secs(5));
+    link.on_connected(ms(0));
+    link.enqueue(part(0));
+    link.enqueue(part(1));
+    let Some(Action::Send { seq, .. }) = link.on_outputs(READY, 0, ms(0)) else { panic!("first part") };
+    assert_eq!(link.on_outputs(READY, seq.wrapping_add(1000), ms(5)), None, "a wrong ack consumes nothing");
+    assert_eq!(link.on_outputs(READY, seq.wrapping_add(1000), ms(10)), None);
+    let v = link.view();
+    assert_eq!((v.wrong_acks, v.delivered, v.data_seq), (1, 0, seq), "counted once, still the first part");
+    let Some(Action::Send { seq: second, .. }) = link.on_outputs(READY, seq, ms(15)) else { panic!("the right ack lets the second go") };
+    assert_eq!((second, link.view().delivered), (seq + 1, 1));
+}
+
+#[test]
+fn after_a_restart_a_part_acknowledged_meanwhile_counts_and_one_not_is_written_again() {
+    let mut link = Link::new(10, Duration::from_secs(5));
+    link.on_connected(ms(0));
+    for i in 0..3 {
+        link.enqueue(part(i));
+    }
+    let Some(Action::Send { seq: s1, .. }) = link.on_outputs(READY, 0, ms(0)) else { panic!() };
+    // The robot took it, and the connection dropped before we read its ACK_SEQ.
+    link.on_disconnected();
+    assert!(link.view().bits & robot_status::CONNECTED == 0);
+    link.on_connected(ms(1000));
+    let a = link.on_outputs(READY, s1, ms(1000));
+    let Some(Action::Send { seq: s2, words }) = a else { panic!("{a:?}") };
+    assert_eq!((s2, link.view().delivered, link.view().reconnects), (s1 + 1, 1, 1), "acknowledged meanwhile: delivered, the next goes");
+    assert_eq!(words[0], part(1).type_id);
+    // This time it was not acknowledged: written again with the same DATA_SEQ, once.
+    link.on_disconnected();
+    link.on_connected(ms(2000));
+    assert_eq!(sends(&link.on_outputs(READY, s1, ms(2000)).into_iter().collect::<Vec<_>>()), vec![(s2, words)]);
+    assert_eq!(link.on_outputs(READY, s1, ms(2005)), None, "not a third time");
+    assert_eq!(link.view().delivered, 1);
+}
+
+#[test]
+fn the_heartbeat_advances_once_a_second_while_connected() {
+    let mut link = Link::new(10, Duration::from_secs(5));
+    assert_eq!(link.poll_timeout(), None, "nothing to do before a connection");
+    link.on_connected(ms(0));
+    let mut beats = Vec::new();
+    let mut t = ms(0);
+    // Step the clock to each moment the link asks for, for 3.5 s.
+    while let Some(next) = link.poll_timeout()
+        && next <= ms(3500)
+    {
+        t = next.max(t);
+        for a in link.handle_timeout(t) {
+            if let Action::Heartbeat { value } = a {
+                beats.push((t, value));
+            }
         }
-    })
-    .await;
-    r.fanuc.set_output(OUT as usize, 1);
-    r.tx.send((0, part(0))).unwrap();
-    r.tx.send((0, part(1))).unwrap();
-    r.until("first part written", Duration::from_secs(5), |v| v.data_seq != 0).await;
-    let seq = r.view().data_seq;
-    r.fanuc.set_output(OUT as usize + 1, seq.wrapping_add(1000));
-    r.until("wrong ack counted", Duration::from_secs(5), |v| v.wrong_acks == 1).await;
-    assert_eq!(r.view().delivered, 0);
-    assert_eq!(r.fanuc.inputs()[IN as usize], seq, "still the first part");
-    r.fanuc.set_output(OUT as usize + 1, seq);
-    r.until("first delivered", Duration::from_secs(5), |v| v.delivered == 1).await;
-    r.until("second written", Duration::from_secs(5), |v| v.data_seq == seq.wrapping_add(1)).await;
-    r.stop_link.cancel();
+    }
+    assert_eq!(beats, vec![(ms(0), 1), (ms(1000), 2), (ms(2000), 3), (ms(3000), 4)]);
+    // A stall of 5 s gives one beat, not five.
+    let stalled: Vec<_> = link.handle_timeout(ms(9000)).into_iter().filter(|a| matches!(a, Action::Heartbeat { .. })).collect();
+    assert_eq!(stalled, vec![Action::Heartbeat { value: 5 }]);
+    assert_eq!(link.poll_timeout(), Some(ms(10000)));
+    link.on_disconnected();
+    assert_eq!(link.poll_timeout(), None, "no heartbeat while disconnected");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -32,7 +32,7 @@ fn rotating_a_part_by_t_rotates_the_estimate_by_t() {
         let fe = est.estimate(img.view().unwrap()).unwrap();
         assert_eq!(fe.parts.len(), 1);
         let p = &fe.parts[0];
-        assert!(p.accepted, "angle {angle}: {} {}", p.reason, p.detail);
+        assert!(p.accepted, "angle {angle}: {} {}", p.reason, p.detail());
         assert_eq!(p.type_name.as_deref(), Some("bracket"));
         assert_eq!(p.face, Some(Face::Up));
         let err = angle_diff_deg(p.angle_deg, angle);
@@ -61,8 +61,8 @@ fn a_mirrored_template_is_recognised_as_the_other_face() {
         }
         let fe = est.estimate(m.view().unwrap()).unwrap();
         let p = &fe.parts[0];
-        assert_eq!(p.type_name.as_deref(), Some("flange"), "{}", p.detail);
-        assert_eq!(p.face, Some(Face::Down), "{}", p.detail);
+        assert_eq!(p.type_name.as_deref(), Some("flange"), "{}", p.detail());
+        assert_eq!(p.face, Some(Face::Down), "{}", p.detail());
         assert!(angle_diff_deg(p.angle_deg, expect).abs() < 0.2, "angle {} expected {expect}", p.angle_deg);
     }
 }
@@ -76,7 +76,7 @@ fn an_unknown_part_is_rejected_not_named_after_the_nearest_type() {
         let fe = est.estimate(frame_with(&lever, face, 41.0 + 90.0 * i as f64, 2.0, 9).view().unwrap()).unwrap();
         assert_eq!(fe.parts.len(), 1);
         assert!(!fe.parts[0].accepted);
-        assert_eq!(fe.parts[0].reason, Reason::UnknownType, "{}", fe.parts[0].detail);
+        assert_eq!(fe.parts[0].reason, Reason::UnknownType, "{}", fe.parts[0].detail());
         assert_eq!(fe.parts[0].type_name, None);
     }
 }

@@ -10,8 +10,7 @@ use std::time::{Duration, Instant};
 use super::source::{Source, SourceError};
 use crate::calibration::Calibration;
 use crate::config::{PickingOrder, Trigger};
-use crate::handshake::{Command, Handshake, Outcome, PartResult};
-use crate::modbus::map::error_code;
+use crate::handshake::{Command, Fault, Handshake, Outcome, PartResult};
 use crate::vision::{Estimator, FrameEstimate, GrayImage, PartEstimate};
 
 /// The estimator a camera uses; replaced whole when the operator enrolls a template.
@@ -76,10 +75,7 @@ impl Worker {
                 Trigger::FreeRun => {
                     // Take a frame only when it can be used: a folder's files wait in the inbox
                     // while the camera is offline or in ERROR instead of being consumed unseen.
-                    let can = {
-                        let hs = self.handshake.lock().unwrap_or_else(|p| p.into_inner());
-                        hs.ready() && hs.word(crate::modbus::map::addr::STATUS) & crate::modbus::map::status::ERROR == 0
-                    };
+                    let can = self.handshake.lock().unwrap_or_else(|p| p.into_inner()).can_acquire();
                     if !can {
                         self.update_camera_ok();
                         std::thread::sleep(Duration::from_millis(50));
@@ -119,16 +115,16 @@ impl Worker {
         let mut debris = 0;
         let outcome = match frame {
             Err(e) => {
-                let code = if matches!(e, SourceError::Unusable(_)) { error_code::FRAME } else { error_code::CAMERA };
+                let fault = if matches!(e, SourceError::Unusable(_)) { Fault::Frame } else { Fault::Camera };
                 tracing::warn!(camera = %self.name, acq_id, "acquisition failed: {e}");
                 self.note_error(e.to_string());
-                Outcome::Failed { code }
+                Outcome::Failed { fault }
             }
             Ok(f) => match self.estimate(&f.image) {
                 Err(e) => {
                     tracing::warn!(camera = %self.name, acq_id, frame = %f.label, "frame error: {e}");
                     self.note_error(format!("{}: {e}", f.label));
-                    Outcome::Failed { code: error_code::FRAME }
+                    Outcome::Failed { fault: Fault::Frame }
                 }
                 Ok(fe) => {
                     let parts = self.results(&fe.parts);
@@ -138,7 +134,7 @@ impl Worker {
                         } else {
                             tracing::info!(camera = %self.name, acq_id, "reject ({}) at ({:.1}, {:.1}) px", p.reason, p.x, p.y);
                         }
-                        tracing::debug!(camera = %self.name, acq_id, "{}", p.detail);
+                        tracing::debug!(camera = %self.name, acq_id, "{}", p.detail());
                     }
                     if parts.is_empty() {
                         tracing::info!(camera = %self.name, acq_id, frame = %f.label, "no part");
@@ -153,29 +149,17 @@ impl Worker {
                 }
             },
         };
-        let robot_parts: Vec<PartResult> = match &outcome {
-            Outcome::Parts { parts, .. } => parts.iter().filter(|p| p.accepted || self.robot_sends_all).cloned().collect(),
-            Outcome::Failed { .. } => Vec::new(),
-        };
-        let expected = {
+        let results = {
             let mut hs = self.handshake.lock().unwrap_or_else(|p| p.into_inner());
             hs.set_camera_ok(self.source.ok());
-            let expected = hs.expected_type();
             hs.set_debris(debris);
-            hs.complete(acq_id, outcome, self.started.elapsed());
-            expected
+            hs.complete(acq_id, outcome, self.started.elapsed())
         };
+        // The robot gets what the PLC gets (the handshake's final results, the expected-type
+        // rule applied there), the rejected ones only with `send = "all"`.
         if let Some(tx) = &self.robot {
-            for mut p in robot_parts {
-                // The robot gets what the PLC gets: a part of another type than expected is rejected.
-                if expected != 0 && p.accepted && p.type_id != expected {
-                    p.accepted = false;
-                    p.reason = crate::vision::Reason::WrongType;
-                    if !self.robot_sends_all {
-                        continue;
-                    }
-                }
-                let _ = tx.send((acq_id, p));
+            for r in results.into_iter().filter(|r| r.is_part() && (r.part.accepted || self.robot_sends_all)) {
+                let _ = tx.send((acq_id, r.part));
             }
         }
         let cycle = t0.elapsed().as_secs_f64() * 1e3;
@@ -191,13 +175,7 @@ impl Worker {
         match self.roi {
             None => estimator.estimate(img.view()?),
             Some([x, y, w, h]) => {
-                if x + w > img.width || y + h > img.height {
-                    return Err(crate::vision::FrameError::TooSmall { width: img.width, height: img.height });
-                }
-                let mut crop = GrayImage::new(w, h, 0);
-                for r in 0..h {
-                    crop.data[r * w..(r + 1) * w].copy_from_slice(&img.data[(y + r) * img.width + x..(y + r) * img.width + x + w]);
-                }
+                let crop = img.crop(x, y, w, h).ok_or(crate::vision::FrameError::TooSmall { width: img.width, height: img.height })?;
                 let mut fe = estimator.estimate(crop.view()?)?;
                 for p in &mut fe.parts {
                     p.x += x as f64;

@@ -3,6 +3,7 @@
 //! [`crate::handshake`].
 
 pub mod camera;
+pub mod enrol;
 pub mod source;
 
 use std::net::SocketAddr;
@@ -48,16 +49,16 @@ pub struct CameraHandle {
     /// Where the knowledge base lives (a file is rewritten on enrollment).
     pub kb: KbSource,
     /// The enrolled templates and where each came from.
-    pub templates: Arc<Mutex<Vec<(Template, String)>>>,
+    pub templates: Arc<Mutex<KnowledgeBase>>,
     pub params: Params,
-    pub robot: Option<Arc<Mutex<crate::handshake::RobotView>>>,
+    pub robot: Option<Arc<Mutex<crate::registers::RobotView>>>,
     thread: Mutex<Option<std::thread::JoinHandle<()>>>,
 }
 
 /// The running appliance.
 pub struct Running {
     pub modbus_addr: SocketAddr,
-    /// The operator view's address, when `[http]` is enabled.
+    /// The operator view's address, once [`crate::http::attach`] has started it.
     pub http_addr: Option<SocketAddr>,
     pub cameras: Arc<Vec<CameraHandle>>,
     pub stations: Arc<Stations>,
@@ -68,12 +69,12 @@ pub struct Running {
     tasks: Vec<tokio::task::JoinHandle<()>>,
 }
 
-fn templates_for(cam: &CameraConfig, params: &Params) -> Result<(Vec<(Template, String)>, String), StartError> {
+fn templates_for(cam: &CameraConfig, params: &Params) -> Result<(KnowledgeBase, String), StartError> {
     match &cam.kb {
         KbSource::File(p) => {
             let kb = KnowledgeBase::load(p).map_err(|source| StartError::Kb { camera: cam.name.clone(), source })?;
             let desc = format!("{} ({} templates, {} types)", p.display(), kb.entries.len(), kb.type_count());
-            Ok((kb.entries.into_iter().map(|e| (e.template, e.source)).collect(), desc))
+            Ok((kb, desc))
         }
         KbSource::Simulator => {
             let SourceConfig::Sim { seed, width, height, noise, .. } = cam.source else {
@@ -82,13 +83,13 @@ fn templates_for(cam: &CameraConfig, params: &Params) -> Result<(Vec<(Template, 
             let sim = Simulator::new(SimSource::config(seed, width, height, noise))
                 .map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })?;
             let names = sim.type_names();
-            let mut out = Vec::new();
+            let mut out = KnowledgeBase::default();
             for (name, face, img) in sim.templates().map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })? {
                 let id = names.iter().position(|n| *n == name).map(|i| i as u16 + 1).unwrap_or(0);
                 let view = img.view().map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })?;
                 let t = Template::from_image(view, &name, id, face, None, params)
                     .map_err(|e| StartError::Sim { camera: cam.name.clone(), message: format!("template {name} {face}: {e}") })?;
-                out.push((t, format!("simulator template {name}_{face}")));
+                out.entries.push(crate::kb::Entry { template: t, source: format!("simulator template {name}_{face}") });
             }
             let desc = names.iter().enumerate().map(|(i, n)| format!("{n} = {}", i + 1)).collect::<Vec<_>>().join(", ");
             Ok((out, format!("enrolled from the simulated camera's templates ({desc})")))
@@ -127,18 +128,13 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
     let mut robot_links = Vec::new();
     for cam in &cfg.cameras {
         let (entries, kb_desc) = templates_for(cam, &params)?;
-        let templates: Vec<Template> = entries.iter().map(|(t, _)| t.clone()).collect();
+        let templates = entries.templates();
         let estimator: camera::SharedEstimator = Arc::new(std::sync::RwLock::new(Arc::new(
             Estimator::new(&templates, params.clone()).map_err(|source| StartError::Estimator { camera: cam.name.clone(), source })?,
         )));
         let calibration =
             Calibration::from_config(&cam.calibration).map_err(|source| StartError::Calibration { camera: cam.name.clone(), source })?;
-        let types = {
-            let mut n: Vec<&str> = templates.iter().map(|t| t.type_name.as_str()).collect();
-            n.sort_unstable();
-            n.dedup();
-            n.len() as u16
-        };
+        let types = entries.type_count().min(65535) as u16;
         tracing::info!(camera = %cam.name, unit_id = cam.unit_id, "knowledge base: {kb_desc}; calibration: {}", calibration.describe());
         let handshake = Arc::new(Mutex::new(Handshake::new(Settings {
             queue_depth: cfg.queue_depth,
@@ -152,7 +148,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
         let (robot_tx, robot_view) = match &cam.robot {
             Some(rc) => {
                 let (rtx, rrx) = tokio::sync::mpsc::unbounded_channel();
-                let view = Arc::new(Mutex::new(crate::handshake::RobotView::default()));
+                let view = Arc::new(Mutex::new(crate::registers::RobotView::default()));
                 robot_links.push((cam.name.clone(), rc.clone(), rrx, view.clone(), handshake.clone()));
                 (Some(rtx), Some(view))
             }
@@ -234,24 +230,16 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
         tasks.push(tokio::spawn(crate::robot::link::run(name, rc, rx, view, shutdown.clone())));
     }
     let cameras = Arc::new(cameras);
-    let http_addr = match &cfg.http {
-        Some(h) => {
-            let listener = TcpListener::bind(h.bind).await.map_err(|source| StartError::Bind { addr: h.bind, source })?;
-            let addr = listener.local_addr().map_err(|source| StartError::Bind { addr: h.bind, source })?;
-            let state = crate::http::AppState { cameras: cameras.clone(), stats: stats.clone(), started, token: h.token.clone() };
-            tracing::info!(
-                "operator view on http://{addr}/ ({})",
-                if h.token.is_some() { "changes need the token" } else { "read-only: no token configured" }
-            );
-            tasks.push(tokio::spawn(crate::http::serve(listener, state, shutdown.clone())));
-            Some(addr)
-        }
-        None => None,
-    };
-    Ok(Running { modbus_addr, http_addr, cameras, stations, stats, started, shutdown, stop, tasks })
+    Ok(Running { modbus_addr, http_addr: None, cameras, stations, stats, started, shutdown, stop, tasks })
 }
 
 impl Running {
+    /// Runs `task` with the appliance: [`Running::stop`] waits for it after cancelling
+    /// [`Running::shutdown`] (how the operator view joins in without the appliance knowing it).
+    pub fn add_task(&mut self, task: tokio::task::JoinHandle<()>) {
+        self.tasks.push(task);
+    }
+
     /// Stops accepting, ends sessions and robot links, and joins the camera threads.
     pub async fn stop(mut self) {
         self.shutdown.cancel();

@@ -5,7 +5,6 @@
 //! from `[http] token` (sent as `Authorization: Bearer <token>`); without a configured token the
 //! view is read-only. Every change is logged with the client's address.
 
-use std::error::Error as _;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Instant;
@@ -19,12 +18,13 @@ use serde::{Deserialize, Serialize};
 use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 
-use crate::appliance::CameraHandle;
-use crate::config::KbSource;
+use crate::appliance::enrol::{EnrolError, EnrolRequest};
+use crate::appliance::{CameraHandle, Running, StartError};
+use crate::config::HttpConfig;
 use crate::handshake::WordOrder;
-use crate::modbus::map::{self, Kind, MAP};
 use crate::modbus::server::Stats;
-use crate::vision::{Estimator, Face, GrayImage, Reason, Template};
+use crate::registers::{self as map, Kind, MAP};
+use crate::vision::{Face, Reason};
 
 const PAGE: &str = include_str!("page.html");
 
@@ -35,6 +35,21 @@ pub struct AppState {
     pub stats: Arc<Stats>,
     pub started: Instant,
     pub token: Option<String>,
+}
+
+/// Starts the operator view beside a running appliance (which stops it with itself).
+pub async fn attach(running: &mut Running, cfg: &HttpConfig) -> Result<SocketAddr, StartError> {
+    let listener = TcpListener::bind(cfg.bind).await.map_err(|source| StartError::Bind { addr: cfg.bind, source })?;
+    let addr = listener.local_addr().map_err(|source| StartError::Bind { addr: cfg.bind, source })?;
+    let state =
+        AppState { cameras: running.cameras.clone(), stats: running.stats.clone(), started: running.started, token: cfg.token.clone() };
+    tracing::info!(
+        "operator view on http://{addr}/ ({})",
+        if cfg.token.is_some() { "changes need the token" } else { "read-only: no token configured" }
+    );
+    running.add_task(tokio::spawn(serve(listener, state, running.shutdown.clone())));
+    running.http_addr = Some(addr);
+    Ok(addr)
 }
 
 pub async fn serve(listener: TcpListener, state: AppState, shutdown: CancellationToken) {
@@ -81,13 +96,9 @@ async fn healthz(State(state): State<AppState>) -> Response {
     }
 }
 
-fn percentile(v: &[f64], q: f64) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    s[((s.len() - 1) as f64 * q).round() as usize]
+/// No measurements yet reads 0 on the page and in the metrics.
+fn nan_to_zero(v: f64) -> f64 {
+    if v.is_nan() { 0.0 } else { v }
 }
 
 /// Metric families: name, type, help.
@@ -173,7 +184,7 @@ async fn metrics(State(state): State<AppState>) -> Response {
                 _ => {
                     let v: Vec<f64> = live.cycle_ms.iter().copied().collect();
                     for q in [0.5, 0.95, 0.99] {
-                        let _ = writeln!(m, "{name}{{{l},quantile=\"{q}\"}} {:.3}", percentile(&v, q));
+                        let _ = writeln!(m, "{name}{{{l},quantile=\"{q}\"}} {:.3}", nan_to_zero(crate::eval::percentile(&v, q)));
                     }
                     let _ = writeln!(m, "{name}_sum{{{l}}} {:.3}\n{name}_count{{{l}}} {}", v.iter().sum::<f64>(), v.len());
                 }
@@ -290,7 +301,7 @@ fn camera_view(c: &CameraHandle) -> CameraView {
     };
     let live = c.live.lock().unwrap_or_else(|p| p.into_inner());
     let cycles: Vec<f64> = live.cycle_ms.iter().copied().collect();
-    let p95 = percentile(&cycles, 0.95);
+    let p95 = nan_to_zero(crate::eval::percentile(&cycles, 0.95));
     let bin = ((p95.max(1.0) * 1.25) / 12.0).max(0.5);
     let mut histogram = vec![0u32; 12];
     for v in &cycles {
@@ -311,7 +322,7 @@ fn camera_view(c: &CameraHandle) -> CameraView {
         frame_errors: live.frame_errors,
         accepted: live.accepted,
         rejected: Reason::ALL.iter().skip(1).map(|r| (r.as_str().to_string(), live.rejected[r.code() as usize])).collect(),
-        cycle_median_ms: percentile(&cycles, 0.5),
+        cycle_median_ms: nan_to_zero(crate::eval::percentile(&cycles, 0.5)),
         cycle_p95_ms: p95,
         histogram,
         histogram_bin_ms: bin,
@@ -329,7 +340,7 @@ fn camera_view(c: &CameraHandle) -> CameraView {
                 x_px: p.x,
                 y_px: p.y,
                 confidence: p.confidence,
-                detail: p.detail.clone(),
+                detail: p.detail(),
             })
             .collect(),
         last_error: live.last_error.clone(),
@@ -386,49 +397,34 @@ async fn templates(State(state): State<AppState>, Path(unit): Path<u8>) -> Resul
         .templates
         .lock()
         .unwrap_or_else(|p| p.into_inner())
+        .entries
         .iter()
         .enumerate()
-        .map(|(i, (t, src))| TemplateView {
+        .map(|(i, e)| TemplateView {
             index: i,
-            type_name: t.type_name.clone(),
-            type_id: t.type_id,
-            face: t.face.as_str(),
-            source: src.clone(),
-            outline_points: t.outline.len(),
-            line_features: t.segments.len(),
+            type_name: e.template.type_name.clone(),
+            type_id: e.template.type_id,
+            face: e.template.face.as_str(),
+            source: e.source.clone(),
+            outline_points: e.template.outline.len(),
+            line_features: e.template.segments.len(),
         })
         .collect();
     Ok(axum::Json(list).into_response())
 }
 
-/// A thumbnail of a template: its outline filled and its line features drawn (the knowledge
-/// base keeps features, not pictures).
+/// A thumbnail of a template (see [`crate::overlay::thumbnail`]).
 async fn template_png(State(state): State<AppState>, Path((unit, index)): Path<(u8, usize)>) -> Result<Response, Failure> {
-    use opencv::core::{Mat, Point, Scalar, Vector};
-    use opencv::imgproc;
     let cam = camera(&state, unit)?;
     let t = cam
         .templates
         .lock()
         .unwrap_or_else(|p| p.into_inner())
+        .entries
         .get(index)
-        .map(|(t, _)| t.clone())
+        .map(|e| e.template.clone())
         .ok_or((StatusCode::NOT_FOUND, format!("no template {index}")))?;
-    let size = 160.0;
-    let (lo, hi) = crate::vision::geometry::bounds(&t.outline);
-    let s = (size - 16.0) / (hi.x - lo.x).max(hi.y - lo.y).max(1.0);
-    let at = |x: f64, y: f64| Point::new(((x - lo.x) * s + 8.0) as i32, ((y - lo.y) * s + 8.0) as i32);
-    let draw = || -> opencv::Result<Mat> {
-        let mut img = Mat::new_rows_cols_with_default(size as i32, size as i32, opencv::core::CV_8UC3, Scalar::new(40.0, 40.0, 40.0, 0.0))?;
-        let mut poly = Vector::<Vector<Point>>::new();
-        poly.push(t.outline.iter().map(|p| at(p.x, p.y)).collect());
-        imgproc::fill_poly(&mut img, &poly, Scalar::new(150.0, 150.0, 150.0, 0.0), imgproc::LINE_AA, 0, Point::new(0, 0))?;
-        for sg in &t.segments {
-            imgproc::line(&mut img, at(sg.a.x, sg.a.y), at(sg.b.x, sg.b.y), Scalar::new(0.0, 200.0, 255.0, 0.0), 1, imgproc::LINE_AA, 0)?;
-        }
-        Ok(img)
-    };
-    let img = draw().map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+    let img = crate::overlay::thumbnail(&t, 160).map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
     let png = crate::imageio::encode_mat(&img, ".png").map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e))?;
     Ok(([(header::CONTENT_TYPE, "image/png")], png).into_response())
 }
@@ -456,26 +452,6 @@ fn authorized(state: &AppState, headers: &HeaderMap) -> Result<(), Failure> {
     if same { Ok(()) } else { Err((StatusCode::UNAUTHORIZED, "wrong or missing token (Authorization: Bearer <token>)".into())) }
 }
 
-/// Cuts the part out of the frame: a square centred on its outline's centroid, so the new
-/// template's origin (the image centre) is that centroid.
-fn crop_part(frame: &GrayImage, outline: &[crate::vision::Pt]) -> Result<GrayImage, String> {
-    let (_, c) = crate::vision::geometry::area_centroid(outline);
-    let r = outline.iter().map(|p| (*p - c).norm()).fold(0.0, f64::max);
-    let half = (r + 40.0).ceil() as i64;
-    let (cx, cy) = (c.x.round() as i64, c.y.round() as i64);
-    if cx - half < 0 || cy - half < 0 || cx + half >= frame.width as i64 || cy + half >= frame.height as i64 {
-        return Err("the part is too close to the frame border to cut out a template with a margin".into());
-    }
-    let side = (2 * half + 1) as usize;
-    let mut out = GrayImage::new(side, side, 0);
-    for y in 0..side {
-        let src = (cy - half) as usize + y;
-        let x0 = (cx - half) as usize;
-        out.data[y * side..(y + 1) * side].copy_from_slice(&frame.data[src * frame.width + x0..src * frame.width + x0 + side]);
-    }
-    Ok(out)
-}
-
 async fn enroll(
     State(state): State<AppState>,
     ConnectInfo(peer): ConnectInfo<SocketAddr>,
@@ -489,52 +465,25 @@ async fn enroll(
     }
     let cam = camera(&state, unit)?;
     let face: Face = req.face.parse().map_err(|e: String| (StatusCode::BAD_REQUEST, e))?;
-    let (frame, estimate, label) = {
-        let live = cam.live.lock().unwrap_or_else(|p| p.into_inner());
-        (live.frame.clone(), live.estimate.clone(), live.label.clone())
-    };
-    let (Some(frame), Some(estimate)) = (frame, estimate) else {
-        return Err((StatusCode::CONFLICT, "no frame yet: trigger one first".into()));
-    };
-    let part = estimate.parts.get(req.part).ok_or((StatusCode::BAD_REQUEST, format!("the current frame has no part {}", req.part)))?;
-    let crop = crop_part(&frame, &part.outline).map_err(|e| (StatusCode::BAD_REQUEST, e))?;
-    let view = crop.view().map_err(|e| (StatusCode::BAD_REQUEST, e.to_string()))?;
-    let template = Template::from_image(view, &req.type_name, req.id, face, None, &cam.params)
-        .map_err(|e| (StatusCode::BAD_REQUEST, e.to_string()))?;
-    let from = if label.is_empty() { "the current frame".to_string() } else { label };
-    let source = format!("operator view ({peer}): {from}, part {}", req.part);
-    let mut kb = crate::kb::KnowledgeBase {
-        entries: cam
-            .templates
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .iter()
-            .map(|(t, s)| crate::kb::Entry { template: t.clone(), source: s.clone() })
-            .collect(),
-    };
-    let replaced = kb.enroll(template, source).map_err(|e| (StatusCode::CONFLICT, e.to_string()))?;
-    let all = kb.templates();
-    let estimator = Estimator::new(&all, cam.params.clone()).map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
-    // The knowledge base file first: if it cannot be written, nothing changes.
-    let saved = match &cam.kb {
-        KbSource::File(path) => {
-            let png = path.with_file_name(format!("{}_{}.png", req.type_name.replace(['/', '\\', '.'], "_"), face));
-            crate::imageio::write_png(&png, &crop).map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
-            kb.save(path).map_err(|e| {
-                (StatusCode::INTERNAL_SERVER_ERROR, format!("{e}: {}", e.source().map(|s| s.to_string()).unwrap_or_default()))
-            })?;
-            format!("saved to {} (template image {})", path.display(), png.display())
-        }
-        KbSource::Simulator => "kept in memory only (kb_from_simulator)".to_string(),
-    };
-    *cam.estimator.write().unwrap_or_else(|p| p.into_inner()) = Arc::new(estimator);
-    let types = kb.type_count() as u16;
-    *cam.templates.lock().unwrap_or_else(|p| p.into_inner()) = kb.entries.into_iter().map(|e| (e.template, e.source)).collect();
-    cam.handshake.lock().unwrap_or_else(|p| p.into_inner()).set_types_enrolled(types);
-    tracing::info!(%peer, camera = %cam.name, "{} template {} {} (id {}) from part {} of {from}; {saved}", if replaced { "replaced" } else { "enrolled" }, req.type_name, face, req.id, req.part);
+    let request =
+        EnrolRequest { part: req.part, type_name: req.type_name.clone(), id: req.id, face, by: format!("operator view ({peer})") };
+    let done = cam.enrol(&request).map_err(|e| {
+        let status = if e.is_request() {
+            StatusCode::BAD_REQUEST
+        } else if e.is_conflict() {
+            StatusCode::CONFLICT
+        } else {
+            StatusCode::INTERNAL_SERVER_ERROR
+        };
+        let message = match std::error::Error::source(&e) {
+            Some(s) if !matches!(e, EnrolError::Kb(_)) => format!("{e}: {s}"),
+            _ => e.to_string(),
+        };
+        (status, message)
+    })?;
     Ok((
         StatusCode::OK,
-        axum::Json(serde_json::json!({ "type": req.type_name, "face": face.as_str(), "id": req.id, "replaced": replaced, "saved": saved })),
+        axum::Json(serde_json::json!({ "type": req.type_name, "face": face.as_str(), "id": req.id, "replaced": done.replaced, "saved": done.saved })),
     )
         .into_response())
 }

@@ -1,6 +1,6 @@
-//! Modbus/TCP towards the PLC: the register map, the request service, the framing and the server.
+//! Modbus/TCP towards the PLC: the request service, the framing and the server (the register
+//! map they serve is [`crate::registers`]).
 
 pub mod frame;
-pub mod map;
 pub mod server;
 pub mod service;

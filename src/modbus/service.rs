@@ -5,8 +5,8 @@ use std::time::Duration;
 
 use tokio_modbus::{ExceptionCode, Request, Response};
 
-use super::map::{self, SIZE};
 use crate::handshake::{Command, Handshake};
+use crate::registers::{self as map, SIZE};
 
 /// Largest read (FC3) and write (FC16) quantities of the Modbus specification.
 pub const MAX_READ: u16 = 125;
@@ -68,4 +68,52 @@ fn check_writes(start: u16, values: &[u16]) -> Result<(), ExceptionCode> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::handshake::{Settings, WordOrder};
+    use crate::modbus::frame;
+
+    /// One request PDU (hex) through the framing's parser, the service and the encoder, against
+    /// a fresh handshake; `expect` is the response PDU (hex), as a PLC receives it.
+    fn check(request: &str, may_write: bool, expect: &str) {
+        let hex = |s: &str| -> Vec<u8> { s.split_whitespace().map(|b| u8::from_str_radix(b, 16).expect("hex byte")).collect() };
+        let pdu = hex(request);
+        let mut hs = Handshake::new(Settings { queue_depth: 4, online: true, word_order: WordOrder::HighFirst, types_enrolled: 3 });
+        let result = frame::parse_request(&pdu).and_then(|req| handle(&mut hs, &req, may_write, Duration::ZERO).map(|(r, _)| r));
+        let adu = frame::encode(1, 1, pdu.first().copied().unwrap_or(0), &result);
+        let got: Vec<String> = adu[frame::HEADER..].iter().map(|b| format!("{b:02x}")).collect();
+        assert_eq!(got.join(" "), expect, "request {request}");
+    }
+
+    #[test]
+    fn requests_and_their_answers() {
+        // FC3: MAP_VERSION (107) reads 2, TYPES_ENROLLED (109) 3.
+        check("03 00 6b 00 01", true, "03 02 00 02");
+        check("03 00 6d 00 01", true, "03 02 00 03");
+        // Quantity before address: 0 or 126 registers is 0x03, past the map 0x02.
+        check("03 00 00 00 00", true, "83 03");
+        check("03 00 00 00 7e", true, "83 03");
+        check("03 01 2c 00 01", true, "83 02");
+        check("03 00 af 00 7e", true, "83 03");
+        check("03 00 b0 00 7d", true, "83 02");
+        // FC6: ONLINE (3) takes 0/1; 2 is 0x03; a read-only register is 0x02.
+        check("06 00 03 00 01", true, "06 00 03 00 01");
+        check("06 00 03 00 02", true, "86 03");
+        check("06 00 64 00 01", true, "86 02");
+        // A client outside the write allow-list may only read.
+        check("06 00 03 00 01", false, "86 01");
+        check("10 00 03 00 01 02 00 01", false, "90 01");
+        // FC16: ONLINE and EXPECTED_TYPE together; a byte count that is not twice the quantity
+        // is 0x03; three registers from 3 reach read-only 5 (0x02).
+        check("10 00 03 00 02 04 00 01 00 02", true, "10 00 03 00 02");
+        check("10 00 03 00 02 03 00 01 00", true, "90 03");
+        check("10 00 03 00 03 06 00 01 00 02 00 00", true, "90 02");
+        // Functions the appliance does not serve.
+        check("04 00 00 00 01", true, "84 01");
+        check("17 00 64 00 01 00 00 00 01 02 00 00", true, "97 01");
+        check("", true, "80 01");
+    }
 }

@@ -9,7 +9,8 @@ use tokio_util::sync::CancellationToken;
 
 use super::{Action, Link, output};
 use crate::config::RobotConfig;
-use crate::handshake::{PartResult, RobotView};
+use crate::handshake::PartResult;
+use crate::registers::RobotView;
 
 async fn resolve(address: &str) -> std::io::Result<std::net::SocketAddr> {
     tokio::net::lookup_host(address)
@@ -24,6 +25,49 @@ fn flat<T>(r: tokio_modbus::Result<T>) -> Result<T, String> {
         Ok(Err(e)) => Err(format!("robot answered exception {e:?}")),
         Err(e) => Err(e.to_string()),
     }
+}
+
+/// Carries the link's actions out on the connection; the first failure ends the connection.
+async fn perform(
+    ctx: &mut tokio_modbus::client::Context,
+    cfg: &RobotConfig,
+    camera: &str,
+    actions: &[Action],
+    link: &mut Link,
+) -> Result<(), String> {
+    for a in actions {
+        match a {
+            Action::Send { seq, words } => {
+                let sent = async {
+                    flat(ctx.write_multiple_registers(cfg.input_words_at + super::input::TYPE_ID, words).await)?;
+                    flat(ctx.write_single_register(cfg.input_words_at + super::input::DATA_SEQ, *seq).await)
+                }
+                .await;
+                if let Err(e) = sent {
+                    link.on_send_failed();
+                    return Err(format!("writing part {seq}: {e}"));
+                }
+                tracing::info!(
+                    camera = %camera,
+                    seq,
+                    "part handed to the robot: type {} face {} angle {} x {} y {}",
+                    words[0],
+                    words[1],
+                    words[2] as i16,
+                    words[3] as i16,
+                    words[4] as i16
+                );
+            }
+            Action::Heartbeat { value } => {
+                flat(ctx.write_single_register(cfg.input_words_at + super::input::HEARTBEAT, *value).await)
+                    .map_err(|e| format!("writing heartbeat: {e}"))?;
+            }
+            Action::ReportAckTimeout { seq, waited } => {
+                tracing::warn!(camera = %camera, "robot did not acknowledge DATA_SEQ {seq} within {:.1} s; keeping the part", waited.as_secs_f64());
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Runs the link until `shutdown`; parts arrive on `parts` (acquisition id, result).
@@ -73,10 +117,8 @@ pub async fn run(
         };
         backoff = Duration::from_millis(100);
         last_complaint = None;
-        link.on_connected();
+        link.on_connected(start.elapsed());
         tracing::info!(camera = %camera, "connected to robot controller {} (unit {})", cfg.address, cfg.unit_id);
-        let mut heartbeat: u16 = 0;
-        let mut last_beat = Instant::now() - Duration::from_secs(2);
         let why = loop {
             drain(&mut link, &mut parts);
             let outputs = if cfg.output_function == 4 {
@@ -89,30 +131,13 @@ pub async fn run(
                 Ok(w) => break format!("robot returned {} output words, expected 2", w.len()),
                 Err(e) => break e,
             };
-            let was_waiting = link.view().bits & crate::modbus::map::robot_status::ACK_TIMEOUT;
-            if let Some(Action::Send { seq, words: w }) = link.on_outputs(words[0], words[1], start.elapsed()) {
-                let mut all = w.to_vec();
-                all.push(heartbeat);
-                let sent = async {
-                    flat(ctx.write_multiple_registers(cfg.input_words_at + super::input::TYPE_ID, &all).await)?;
-                    flat(ctx.write_single_register(cfg.input_words_at + super::input::DATA_SEQ, seq).await)
-                }
-                .await;
-                if let Err(e) = sent {
-                    link.on_send_failed();
-                    break format!("writing part {seq}: {e}");
-                }
-                tracing::info!(camera = %camera, seq, "part handed to the robot: type {} face {} angle {} x {} y {}", w[0], w[1], w[2] as i16, w[3] as i16, w[4] as i16);
+            let now = start.elapsed();
+            let mut actions: Vec<Action> = link.on_outputs(words[0], words[1], now).into_iter().collect();
+            if link.poll_timeout().is_some_and(|t| t <= now) {
+                actions.extend(link.handle_timeout(now));
             }
-            if link.view().bits & crate::modbus::map::robot_status::ACK_TIMEOUT != 0 && was_waiting == 0 {
-                tracing::warn!(camera = %camera, "robot did not acknowledge DATA_SEQ {} within {} s; keeping the part", link.view().data_seq, cfg.ack_timeout.as_secs_f64());
-            }
-            if last_beat.elapsed() >= Duration::from_secs(1) {
-                heartbeat = heartbeat.wrapping_add(1);
-                last_beat = Instant::now();
-                if let Err(e) = flat(ctx.write_single_register(cfg.input_words_at + super::input::HEARTBEAT, heartbeat).await) {
-                    break format!("writing heartbeat: {e}");
-                }
+            if let Err(e) = perform(&mut ctx, &cfg, &camera, &actions, &mut link).await {
+                break e;
             }
             publish(&link);
             tokio::select! {

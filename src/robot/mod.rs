@@ -10,7 +10,8 @@ pub mod link;
 use std::collections::VecDeque;
 use std::time::Duration;
 
-use crate::handshake::{PartResult, RobotView, angle_word, robot_bits};
+use crate::handshake::{PartResult, angle_word};
+use crate::registers::{RobotView, i16_word, robot_bits, u16_word};
 
 /// Robot input words (offsets from `input_words_at`), written by the appliance.
 pub mod input {
@@ -64,24 +65,34 @@ pub fn markdown() -> String {
 /// part (sent only with `send = "all"`) carries TYPE_ID 0 and CONFIDENCE 0: never a pick
 /// instruction.
 pub fn part_words(p: &PartResult) -> [u16; 6] {
-    let i16w = |v: f64| (v.round().clamp(-32768.0, 32767.0) as i16) as u16;
-    let (type_id, conf) = if p.accepted { (p.type_id, (p.confidence * 1000.0).round().clamp(0.0, 1000.0) as u16) } else { (0, 0) };
-    [type_id, p.face, angle_word(p.angle_deg), i16w(p.x_mm * 10.0), i16w(p.y_mm * 10.0), conf]
+    let (type_id, conf) = if p.accepted { (p.type_id, u16_word(p.confidence.clamp(0.0, 1.0) * 1000.0)) } else { (0, 0) };
+    [type_id, p.face, angle_word(p.angle_deg), i16_word(p.x_mm * 10.0), i16_word(p.y_mm * 10.0), conf]
 }
 
 /// What the driver must do next.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Action {
-    /// Write words 1..=7 (these six and the heartbeat, one FC16), then DATA_SEQ alone (a second
-    /// request), so the robot never acts on half-written data.
-    Send { seq: u16, words: [u16; 6] },
+    /// Write words 1..=7 (the part's six and the heartbeat, one FC16), then DATA_SEQ alone (a
+    /// second request), so the robot never acts on half-written data.
+    Send { seq: u16, words: [u16; 7] },
+    /// Write HEARTBEAT alone.
+    Heartbeat { value: u16 },
+    /// The robot has not acknowledged DATA_SEQ `seq` within the ack timeout (`waited` so far):
+    /// the part stays in flight; say so once.
+    ReportAckTimeout { seq: u16, waited: Duration },
 }
 
 fn next_seq(s: u16) -> u16 {
     if s == u16::MAX { 1 } else { s + 1 }
 }
 
-/// The robot link's protocol state.
+/// HEARTBEAT advances once per second while connected.
+const HEARTBEAT_PERIOD: Duration = Duration::from_secs(1);
+
+/// The robot link's protocol state, sans I/O: connection events, the robot's outputs and the
+/// time go in (time only as an argument, so tests run it on a virtual clock); the writes to
+/// perform come out. Like a QUIC connection's state machine, it says when it next needs the
+/// time ([`Link::poll_timeout`]) and acts on it ([`Link::handle_timeout`]).
 #[derive(Debug, Clone)]
 pub struct Link {
     queue: VecDeque<PartResult>,
@@ -101,6 +112,9 @@ pub struct Link {
     timed_out: bool,
     view: RobotView,
     first_connection: bool,
+    heartbeat: u16,
+    /// When HEARTBEAT is next due (while connected).
+    next_beat: Option<Duration>,
 }
 
 impl Link {
@@ -119,6 +133,8 @@ impl Link {
             timed_out: false,
             view: RobotView::default(),
             first_connection: true,
+            heartbeat: 0,
+            next_beat: None,
         }
     }
 
@@ -132,13 +148,15 @@ impl Link {
         true
     }
 
-    pub fn on_connected(&mut self) {
+    /// Connected at `now`: the first heartbeat is due at once.
+    pub fn on_connected(&mut self, now: Duration) {
         if !self.first_connection {
             self.view.reconnects = self.view.reconnects.wrapping_add(1);
         }
         self.first_connection = false;
         self.connected = true;
         self.synced = false;
+        self.next_beat = Some(now);
     }
 
     /// The connection dropped: whatever was in flight must be confirmed (or re-sent) once the
@@ -146,6 +164,7 @@ impl Link {
     pub fn on_disconnected(&mut self) {
         self.connected = false;
         self.synced = false;
+        self.next_beat = None;
         if let Some(f) = self.in_flight.as_mut() {
             f.3 = true;
         }
@@ -183,16 +202,12 @@ impl Link {
         }
         self.last_ack = Some(ack);
         self.view.ack_seq = ack;
-        if let Some((seq, p, sent, resend)) = self.in_flight.clone() {
-            if now.saturating_sub(sent) > self.ack_timeout && !self.timed_out {
-                self.timed_out = true;
-                self.view.ack_timeouts = self.view.ack_timeouts.wrapping_add(1);
-            }
+        if let Some((seq, p, _, resend)) = self.in_flight.clone() {
             if resend {
                 if let Some(f) = self.in_flight.as_mut() {
                     f.3 = false;
                 }
-                return Some(Action::Send { seq, words: part_words(&p) });
+                return Some(Action::Send { seq, words: self.words(&p) });
             }
             return None;
         }
@@ -203,9 +218,47 @@ impl Link {
         let seq = next_seq(self.last_seq);
         self.last_seq = seq;
         self.view.data_seq = seq;
-        let words = part_words(&p);
+        let words = self.words(&p);
         self.in_flight = Some((seq, p, now, false));
         Some(Action::Send { seq, words })
+    }
+
+    fn words(&self, p: &PartResult) -> [u16; 7] {
+        let w = part_words(p);
+        [w[0], w[1], w[2], w[3], w[4], w[5], self.heartbeat]
+    }
+
+    /// The next moment the link needs [`Link::handle_timeout`]: the in-flight part's ack
+    /// deadline (until it has passed once) or the next heartbeat, whichever comes first.
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        let ack = self.in_flight.as_ref().filter(|_| !self.timed_out).map(|f| f.2 + self.ack_timeout);
+        match (ack, self.next_beat) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// The time is `now`: flags an overdue acknowledgement (once per part) and advances the
+    /// heartbeat when it is due.
+    pub fn handle_timeout(&mut self, now: Duration) -> Vec<Action> {
+        let mut out = Vec::new();
+        if let Some((seq, _, sent, _)) = &self.in_flight
+            && !self.timed_out
+            && now.saturating_sub(*sent) > self.ack_timeout
+        {
+            self.timed_out = true;
+            self.view.ack_timeouts = self.view.ack_timeouts.wrapping_add(1);
+            out.push(Action::ReportAckTimeout { seq: *seq, waited: now.saturating_sub(*sent) });
+        }
+        if let Some(due) = self.next_beat
+            && now >= due
+        {
+            self.heartbeat = self.heartbeat.wrapping_add(1);
+            // Catch up without a burst after a stall: the next beat a period from now.
+            self.next_beat = Some(if now - due >= HEARTBEAT_PERIOD { now + HEARTBEAT_PERIOD } else { due + HEARTBEAT_PERIOD });
+            out.push(Action::Heartbeat { value: self.heartbeat });
+        }
+        out
     }
 
     pub fn connected(&self) -> bool {

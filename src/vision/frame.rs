@@ -125,6 +125,19 @@ impl GrayImage {
         GrayView::new(&self.data, self.width, self.height)
     }
 
+    /// The `w` x `h` rectangle at (`x`, `y`), copied; None unless it lies inside the image.
+    pub fn crop(&self, x: usize, y: usize, w: usize, h: usize) -> Option<GrayImage> {
+        if x.checked_add(w)? > self.width || y.checked_add(h)? > self.height {
+            return None;
+        }
+        let mut out = GrayImage::new(w, h, 0);
+        for r in 0..h {
+            let at = (y + r) * self.width + x;
+            out.data[r * w..(r + 1) * w].copy_from_slice(&self.data[at..at + w]);
+        }
+        Some(out)
+    }
+
     /// Converts any frame a camera or file may deliver into 8-bit gray, returning a note for each
     /// conversion made (colour to gray, 16 to 8 bits) so the caller can log it.
     pub fn from_mat(mat: &Mat) -> Result<(Self, Vec<String>), FrameError> {

@@ -16,6 +16,7 @@
 pub mod boundary;
 pub mod clump;
 pub mod correlate;
+pub mod decide;
 pub mod detect;
 pub mod frame;
 pub mod geometry;
@@ -32,6 +33,7 @@ pub use lines::{LineDetector, LineFeature, Segment};
 pub use template::{KeepOut, Library, Template, TemplateError};
 
 use boundary::RefineParams;
+use decide::{Decision, Evidence, Named, NextFit, OutlineFit, RegionFit, Verdict};
 use detect::DetectParams;
 pub use geometry::Similarity;
 use geometry::{area_centroid, bounds};
@@ -265,9 +267,10 @@ pub struct PartEstimate {
     pub scale: f64,
     pub confidence: f64,
     pub accepted: bool,
+    /// `decision`'s verdict as the PLC's REASON (kept beside it: every consumer reads it).
     pub reason: Reason,
-    /// The numbers behind the decision, for logs and the operator.
-    pub detail: String,
+    /// The verdict and the numbers behind it (rendered by [`PartEstimate::detail`]).
+    pub decision: Decision,
     /// Fraction of the outline explained by the template (the worse of both directions).
     pub fit: f64,
     /// Best template (index into [`Estimator::templates`]) and its pose, when one was registered.
@@ -276,6 +279,20 @@ pub struct PartEstimate {
     pub axis: Option<Segment>,
     pub segments: Vec<Segment>,
     pub descriptor: Vec<LineFeature>,
+}
+
+impl PartEstimate {
+    /// The decision and its numbers as text, for logs and the operator's "why".
+    pub fn detail(&self) -> String {
+        self.decision.to_string()
+    }
+
+    /// Records the verdict: REASON and acceptance follow from it, in this one place.
+    fn conclude(&mut self, verdict: Verdict, evidence: Evidence) {
+        self.reason = verdict.reason();
+        self.accepted = verdict == Verdict::Accept;
+        self.decision = Decision::new(verdict, evidence);
+    }
 }
 
 /// The estimate for one frame.
@@ -444,7 +461,7 @@ impl Estimator {
                 confidence: 0.0,
                 accepted: false,
                 reason: Reason::Touching,
-                detail: String::new(),
+                decision: Decision::new(Verdict::OrderUnclear, Evidence::default()),
                 fit: f.support,
                 matched: Some((f.entry, pose)),
                 outline: tpl.outline.iter().map(|&q| pose.apply(q)).collect(),
@@ -456,54 +473,56 @@ impl Estimator {
             let segments: Vec<Segment> = all_segments.iter().filter(|s| s.len() >= p.min_segment_fraction * diag).copied().collect();
             est.confidence = confidence(&tpl.segments, &segments, &pose, diag, lambda);
             let (lo, hi) = bounds(&est.outline);
-            let at_border = reaches_border(lo, hi, frame);
-            est.detail = format!(
-                "found in a region of several parts: {} {} outline explained {:.3} (need {:.2}), on the region's outline {:.3}, rms {:.2} px, scale {:.3}, confidence {:.3}",
-                tpl.type_name, tpl.face, f.support, p.min_support, f.reg.coverage, f.reg.rms, pose.scale, est.confidence
-            );
-            if pose.scale < p.scale_range.0 || pose.scale > p.scale_range.1 {
+            let mut evidence = Evidence {
+                region: Some(RegionFit {
+                    best: named(tpl),
+                    support: f.support,
+                    need: p.min_support,
+                    coverage: f.reg.coverage,
+                    rms: f.reg.rms,
+                    scale: pose.scale,
+                }),
+                lines: Some(decide::Lines { confidence: est.confidence, noise, contrast, lambda }),
+                ..Evidence::default()
+            };
+            let verdict = if pose.scale < p.scale_range.0 || pose.scale > p.scale_range.1 {
+                Verdict::Scale { scale: pose.scale, range: p.scale_range }
+            } else if reaches_border(lo, hi, frame) {
+                Verdict::AtBorder { lo, hi }
+            } else if let Some(k) = f.under {
+                Verdict::Covered { by: named(&self.lib.entries[ex.parts[k].entry].template) }
+            } else if f.order_unclear {
+                Verdict::OrderUnclear
+            } else if f.support < p.min_support {
+                Verdict::Unseen { support: f.support, need: p.min_support }
+            } else if let Some(rival) = f.rival.and_then(|(ri, rreg, rsupport)| {
+                let rc = confidence(&self.lib.entries[ri].template.segments, &segments, &rreg.pose, diag, lambda);
+                (rsupport >= f.support - p.ambiguity_margin
+                    && self.rivals(&whole.outline, f.entry, &f.reg, f.tolerance, ri, &rreg)
+                    && est.confidence - rc < p.confidence_margin)
+                    .then(|| decide::Rival {
+                        name: named(&self.lib.entries[ri].template),
+                        fit: rsupport,
+                        best: f.support,
+                        tolerance: f.tolerance,
+                        confidence: rc,
+                    })
+            }) {
+                evidence.rival = Some(rival.clone());
+                Verdict::Rival { rival }
+            } else if est.confidence < p.accept_threshold {
+                Verdict::LowConfidence { confidence: est.confidence, threshold: p.accept_threshold }
+            } else if let Some(n) = blocked_footprint(coarse, tpl, &pose, &est.outline) {
+                Verdict::NoClearance { edge_px: n }
+            } else {
+                Verdict::Accept
+            };
+            if matches!(verdict, Verdict::Scale { .. }) {
                 est.type_name = None;
                 est.type_id = 0;
                 est.face = None;
-                est.reason = Reason::UnknownType;
-                est.detail = format!("scale {:.3} outside {:.2}..{:.2}; {}", pose.scale, p.scale_range.0, p.scale_range.1, est.detail);
-            } else if at_border {
-                est.reason = Reason::AtBorder;
-                est.detail = format!(
-                    "its outline reaches the frame border (x {:.1}..{:.1}, y {:.1}..{:.1}); {}",
-                    lo.x, hi.x, lo.y, hi.y, est.detail
-                );
-            } else if let Some(k) = f.under {
-                let o = &self.lib.entries[ex.parts[k].entry].template;
-                est.reason = Reason::Covered;
-                est.detail = format!("{} {} lies on it; {}", o.type_name, o.face, est.detail);
-            } else if f.order_unclear {
-                est.reason = Reason::Touching;
-                est.detail = format!("it overlaps another part and the image does not tell which lies on top; {}", est.detail);
-            } else if f.support < p.min_support {
-                est.reason = Reason::Touching;
-                est.detail = format!("part of its outline is not seen (something unknown lies on or against it); {}", est.detail);
-            } else if let Some((ri, rreg, rsupport)) = f.rival
-                && rsupport >= f.support - p.ambiguity_margin
-                && self.rivals(&whole.outline, f.entry, &f.reg, f.tolerance, ri, &rreg)
-                && est.confidence - confidence(&self.lib.entries[ri].template.segments, &segments, &rreg.pose, diag, lambda)
-                    < p.confidence_margin
-            {
-                let o = &self.lib.entries[ri].template;
-                est.reason = Reason::Ambiguous;
-                est.detail = format!(
-                    "{} {} explains it almost as well ({rsupport:.3}) and its line features are not clearly worse; {}",
-                    o.type_name, o.face, est.detail
-                );
-            } else if est.confidence < p.accept_threshold {
-                est.reason = Reason::LowConfidence;
-            } else if let Some(n) = blocked_footprint(coarse, tpl, &pose, &est.outline) {
-                est.reason = Reason::NoClearance;
-                est.detail = format!("{n} edge pixels of other material inside the gripper's keep-out footprint; {}", est.detail);
-            } else {
-                est.accepted = true;
-                est.reason = Reason::Ok;
             }
+            est.conclude(verdict, evidence);
             out.push(est);
         }
         let mut debris = 0;
@@ -523,7 +542,7 @@ impl Estimator {
                 confidence: 0.0,
                 accepted: false,
                 reason: Reason::Touching,
-                detail: format!("{area:.0} px^2 of material beside the parts found here that no enrolled part explains"),
+                decision: Decision::new(Verdict::Unexplained { area }, Evidence::default()),
                 fit: 0.0,
                 matched: None,
                 outline: Vec::new(),
@@ -556,7 +575,7 @@ impl Estimator {
             confidence: 0.0,
             accepted: false,
             reason: Reason::UnknownType,
-            detail: String::new(),
+            decision: Decision::new(Verdict::NoFit { need: p.min_fit, merged: false }, Evidence::default()),
             fit: 0.0,
             matched: None,
             outline: blob.outline.clone(),
@@ -578,14 +597,12 @@ impl Estimator {
         // whole part may reach the edge through the closing, so the refined outline decides).
         let (lo, hi) = bounds(&outline);
         if reaches_border(lo, hi, frame) {
-            est.reason = Reason::AtBorder;
-            est.detail = format!("outline reaches the frame border (x {:.1}..{:.1}, y {:.1}..{:.1})", lo.x, hi.x, lo.y, hi.y);
+            est.conclude(Verdict::AtBorder { lo, hi }, Evidence::default());
             return Ok((est, contrast));
         }
         let max_scale2 = p.scale_range.1 * p.scale_range.1;
         if area > p.touching_area_ratio * self.max_template_area * max_scale2 {
-            est.reason = Reason::Touching;
-            est.detail = format!("region of {area:.0} px^2 is larger than any enrolled part could be");
+            est.conclude(Verdict::TooLarge { area }, Evidence::default());
             return Ok((est, contrast));
         }
 
@@ -651,43 +668,42 @@ impl Estimator {
         est.fit = best.reg.fit();
         est.scale = pose.scale;
         est.matched = Some((best.entry, pose));
-        let others: Vec<String> = aligned
+        let next = aligned
             .iter()
             .filter(|(i, _)| *i != best.entry)
             .take(2)
             .map(|(i, al)| {
-                let t = &self.lib.entries[*i].template;
-                match cands.iter().find(|c| c.entry == *i) {
-                    Some(c) => format!("{} {} fit {:.3}", t.type_name, t.face, c.reg.fit()),
-                    None => format!("{} {} corr rms {:.4}", t.type_name, t.face, al.rms),
-                }
+                let fit = match cands.iter().find(|c| c.entry == *i) {
+                    Some(c) => NextFit::Fit(c.reg.fit()),
+                    None => NextFit::CorrRms(al.rms),
+                };
+                (named(&self.lib.entries[*i].template), fit)
             })
             .collect();
-        est.detail = format!(
-            "best {} {}: fit {:.3} (inliers {:.3}, coverage {:.3}, extra {:.3}, missing {:.3}, rms {:.2} px, tol {:.2} px), corr rms {:.4}, scale {:.3}; next: {}",
-            tpl.type_name,
-            tpl.face,
-            est.fit,
-            best.reg.inliers,
-            best.reg.coverage,
-            best.reg.extra,
-            best.reg.missing,
-            best.reg.rms,
-            best.tolerance,
-            best.corr_rms,
-            pose.scale,
-            others.join(", ")
-        );
+        let mut evidence = Evidence {
+            outline: Some(OutlineFit {
+                best: named(tpl),
+                fit: est.fit,
+                inliers: best.reg.inliers,
+                coverage: best.reg.coverage,
+                extra: best.reg.extra,
+                missing: best.reg.missing,
+                rms: best.reg.rms,
+                tolerance: best.tolerance,
+                corr_rms: best.corr_rms,
+                scale: pose.scale,
+                next,
+            }),
+            ..Evidence::default()
+        };
         if est.fit < p.min_fit {
             // Several parts merged into one region are larger than the template they resemble.
             let nominal = self.lib.entries[aligned[0].0].template.area;
-            est.reason = if area > p.touching_area_ratio * nominal { Reason::Touching } else { Reason::UnknownType };
-            est.detail = format!("no template fits (need {:.2}); {}", p.min_fit, est.detail);
+            est.conclude(Verdict::NoFit { need: p.min_fit, merged: area > p.touching_area_ratio * nominal }, evidence);
             return Ok((est, contrast));
         }
         if pose.scale < p.scale_range.0 || pose.scale > p.scale_range.1 {
-            est.reason = Reason::UnknownType;
-            est.detail = format!("scale {:.3} outside {:.2}..{:.2}; {}", pose.scale, p.scale_range.0, p.scale_range.1, est.detail);
+            est.conclude(Verdict::Scale { scale: pose.scale, range: p.scale_range }, evidence);
             return Ok((est, contrast));
         }
         // From here on the part has a type, face and pose, accepted or not.
@@ -698,15 +714,7 @@ impl Estimator {
         est.x = origin.x;
         est.y = origin.y;
         if best.reg.extra > p.max_foreign || best.reg.missing > p.max_foreign {
-            est.reason = Reason::Touching;
-            est.detail = format!(
-                "the outline {} (extra {:.3}, missing {:.3}, limit {:.3}); {}",
-                if best.reg.extra > p.max_foreign { "runs onto something else" } else { "is partly hidden" },
-                best.reg.extra,
-                best.reg.missing,
-                p.max_foreign,
-                est.detail
-            );
+            est.conclude(Verdict::Foreign { extra: best.reg.extra, missing: best.reg.missing, limit: p.max_foreign }, evidence);
             return Ok((est, contrast));
         }
 
@@ -736,37 +744,35 @@ impl Estimator {
         let rival_conf =
             rival.map(|(c, _)| confidence(&self.lib.entries[c.entry].template.segments, &est.segments, &c.reg.pose, diag, lambda));
         tm.confidence += ms(t);
-        est.detail = format!(
-            "{}, confidence {:.3} (noise {:.1}, contrast {:.0}, lambda {:.1})",
-            est.detail, est.confidence, noise, refined.contrast, lambda
-        );
-
+        evidence.lines = Some(decide::Lines { confidence: est.confidence, noise, contrast: refined.contrast, lambda });
         if let (Some((c, rival_fit)), Some(rc)) = (rival, rival_conf) {
-            let o = &self.lib.entries[c.entry].template;
-            est.detail = format!(
-                "{}; rival {} {} fit {:.3} vs {:.3} at {:.2} px, confidence {:.3}",
-                est.detail, o.type_name, o.face, rival_fit, best_tight, tight, rc
-            );
+            let rival = decide::Rival {
+                name: named(&self.lib.entries[c.entry].template),
+                fit: rival_fit,
+                best: best_tight,
+                tolerance: tight,
+                confidence: rc,
+            };
+            evidence.rival = Some(rival.clone());
             if est.confidence - rc < p.confidence_margin {
-                est.reason = Reason::Ambiguous;
-                est.detail =
-                    format!("{} {} fits almost as well and its line features are not clearly worse; {}", o.type_name, o.face, est.detail);
+                est.conclude(Verdict::Rival { rival }, evidence);
                 return Ok((est, contrast));
             }
         }
-        if est.confidence < p.accept_threshold {
-            est.reason = Reason::LowConfidence;
-            return Ok((est, contrast));
-        }
-        if let Some(n) = blocked_footprint(coarse, tpl, &pose, &outline) {
-            est.reason = Reason::NoClearance;
-            est.detail = format!("{n} edge pixels of other material inside the gripper's keep-out footprint; {}", est.detail);
-            return Ok((est, contrast));
-        }
-        est.accepted = true;
-        est.reason = Reason::Ok;
+        let verdict = if est.confidence < p.accept_threshold {
+            Verdict::LowConfidence { confidence: est.confidence, threshold: p.accept_threshold }
+        } else if let Some(n) = blocked_footprint(coarse, tpl, &pose, &outline) {
+            Verdict::NoClearance { edge_px: n }
+        } else {
+            Verdict::Accept
+        };
+        est.conclude(verdict, evidence);
         Ok((est, contrast))
     }
+}
+
+fn named(t: &Template) -> Named {
+    Named { type_name: t.type_name.clone(), face: t.face }
 }
 
 /// Whether an outline with bounds `lo`..`hi` comes within 3 px of the frame's edge: the part may

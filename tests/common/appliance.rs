@@ -6,7 +6,7 @@ use std::net::SocketAddr;
 use std::path::Path;
 use std::time::Duration;
 
-use lfi_bridge::appliance::{self, Running};
+use lfi_bridge::appliance::Running;
 use lfi_bridge::config::Config;
 use tokio_modbus::prelude::*;
 
@@ -19,7 +19,7 @@ pub fn config(extra_modbus: &str, camera_extra: &str) -> Config {
 }
 
 pub async fn start(cfg: &Config) -> Running {
-    appliance::start(cfg).await.expect("appliance starts")
+    lfi_bridge::start(cfg).await.expect("appliance starts")
 }
 
 pub async fn plc(addr: SocketAddr, unit: u8) -> client::Context {
@@ -51,7 +51,7 @@ pub async fn wait_status(ctx: &mut client::Context, pred: impl Fn(u16) -> bool, 
 /// TRIGGER, then consumes every queued result. Returns each result's block of registers 100..219
 /// (index 0 is STATUS, index 100 RESULT_SEQ), in the order consumed.
 pub async fn cycle(ctx: &mut client::Context) -> Vec<Vec<u16>> {
-    use lfi_bridge::modbus::map::{addr, status};
+    use lfi_bridge::registers::{addr, status};
     wait_status(ctx, |s| s & status::READY != 0, Duration::from_secs(10)).await;
     write(ctx, addr::TRIGGER, 1).await;
     wait_status(ctx, |s| s & status::TRIGGER_ACK != 0 && s & status::BUSY == 0, Duration::from_secs(10)).await;

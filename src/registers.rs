@@ -1,5 +1,6 @@
-//! The PLC register map: one table, from which the server, the tests and `register-map.md`
-//! are derived. Addresses are 0-based protocol addresses (PLC tools show 400001 + address).
+//! The PLC register map: one table, from which the handshake, the Modbus service, the tests and
+//! `register-map.md` are derived. It is pure data at the bottom of the house: everything that
+//! speaks to the PLC stands on it, and it imports nothing of theirs. Addresses are 0-based protocol addresses (PLC tools show 400001 + address).
 
 /// Who may write a register.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -286,7 +287,7 @@ fn kind_name(k: Kind) -> &'static str {
 pub fn markdown() -> String {
     let mut s = String::new();
     s.push_str("# lfi-bridge register map\n\n");
-    s.push_str("Generated from `src/modbus/map.rs` by `lfi-bridge register-map`; a test fails if this file and the table differ.\n\n");
+    s.push_str("Generated from `src/registers.rs` by `lfi-bridge register-map`; a test fails if this file and the table differ (refresh: `LFI_BLESS=1 cargo test --test register_map`).\n\n");
     s.push_str(&format!(
         "Holding registers, function codes 3 (read), 6 and 16 (write). MAP_VERSION = {MAP_VERSION}. \"Address\" is the 0-based protocol address; \"PLC\" the 1-based number PLC tools show (400001 + address). Addresses 0..{} not listed are reserved: they read as 0 and refuse writes (exception 0x02).\n\n",
         SIZE - 1
@@ -318,6 +319,49 @@ pub fn markdown() -> String {
     s.push_str("\n## Changes\n\n");
     s.push_str("MAP_VERSION 2 (from 1): REASON gains 9 `covered` (another part lies partly on this one: grasping it would drag the one on top) and 10 `no clearance` (the gripper's keep-out footprint around the part holds other material); DEBRIS_COUNT (119) is new. Every other address and meaning is unchanged. A MAP_VERSION 1 program that treats any DECISION 2 as a reject keeps working; one that looks REASON up in a table of nine entries must grow it.\n");
     s
+}
+
+/// The robot link's state as shown in registers 110..118.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct RobotView {
+    pub bits: u16,
+    pub queue: u16,
+    pub delivered: u16,
+    pub ack_timeouts: u16,
+    pub wrong_acks: u16,
+    pub reconnects: u16,
+    pub dropped: u16,
+    pub data_seq: u16,
+    pub ack_seq: u16,
+}
+
+/// Robot-link bits for [`RobotView::bits`].
+pub fn robot_bits(configured: bool, connected: bool, waiting: bool, timed_out: bool, ready: bool, fault: bool) -> u16 {
+    let mut b = 0;
+    for (on, bit) in [
+        (configured, robot_status::CONFIGURED),
+        (connected, robot_status::CONNECTED),
+        (waiting, robot_status::WAITING_ACK),
+        (timed_out, robot_status::ACK_TIMEOUT),
+        (ready, robot_status::ROBOT_READY),
+        (fault, robot_status::ROBOT_FAULT),
+    ] {
+        if on {
+            b |= bit;
+        }
+    }
+    b
+}
+
+/// A value as an unsigned register word, rounded and saturated at 0..65535.
+pub fn u16_word(v: f64) -> u16 {
+    v.round().clamp(0.0, 65535.0) as u16
+}
+
+/// A value as a signed (two's complement) register word, rounded and saturated at
+/// -32768..32767.
+pub fn i16_word(v: f64) -> u16 {
+    (v.round().clamp(-32768.0, 32767.0) as i16) as u16
 }
 
 #[cfg(test)]

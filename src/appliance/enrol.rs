@@ -1,0 +1,129 @@
+//! Enrolling a template from a part of a camera's current frame: cut it out, build the
+//! template, save the knowledge base (when it is a file), then swap the camera's estimator and
+//! tell its handshake. The operator view only carries the request in and the answer out.
+
+use std::error::Error as _;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use super::CameraHandle;
+use crate::config::KbSource;
+use crate::vision::{Estimator, Face, GrayImage, Pt, Template};
+
+/// What to enrol: part `part` of the camera's current frame as `type_name` (id `id`), `face`.
+#[derive(Debug, Clone)]
+pub struct EnrolRequest {
+    pub part: usize,
+    pub type_name: String,
+    pub id: u16,
+    pub face: Face,
+    /// Who asked (kept as the template's source, e.g. "operator view (10.0.0.7:51234)").
+    pub by: String,
+}
+
+/// An enrolment done.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Enrolled {
+    /// An earlier template of the same type and face was replaced.
+    pub replaced: bool,
+    /// Where it was kept ("saved to ...", or in memory only).
+    pub saved: String,
+    /// The frame it came from.
+    pub from: String,
+}
+
+/// Why an enrolment did not happen; nothing changed in any of these cases.
+#[derive(Debug, thiserror::Error)]
+pub enum EnrolError {
+    #[error("no frame yet: trigger one first")]
+    NoFrame,
+    #[error("the current frame has no part {part} (it has {count})")]
+    NoPart { part: usize, count: usize },
+    #[error("part {part} is too close to the frame border to cut out a template with a margin")]
+    AtBorder { part: usize },
+    #[error("part {part} gives no template")]
+    Template { part: usize, source: crate::vision::TemplateError },
+    #[error(transparent)]
+    Kb(#[from] crate::kb::KbError),
+    #[error("the new knowledge base gives no estimator")]
+    Estimator(#[from] crate::vision::EstimatorError),
+    #[error("cannot write the template image {path}: {message}")]
+    Image { path: PathBuf, message: String },
+}
+
+impl EnrolError {
+    /// The request itself was wrong (the operator can fix it), rather than the appliance.
+    pub fn is_request(&self) -> bool {
+        matches!(self, EnrolError::NoPart { .. } | EnrolError::AtBorder { .. } | EnrolError::Template { .. })
+    }
+    /// The request conflicts with the state (no frame yet, a type's id taken).
+    pub fn is_conflict(&self) -> bool {
+        matches!(
+            self,
+            EnrolError::NoFrame | EnrolError::Kb(crate::kb::KbError::IdConflict { .. } | crate::kb::KbError::NameConflict { .. })
+        )
+    }
+}
+
+impl CameraHandle {
+    /// Enrols a part of the current frame (see the module doc). The knowledge base file is
+    /// written first: if it cannot be, the camera keeps its estimator.
+    pub fn enrol(&self, req: &EnrolRequest) -> Result<Enrolled, EnrolError> {
+        let (frame, estimate, label) = {
+            let live = self.live.lock().unwrap_or_else(|p| p.into_inner());
+            (live.frame.clone(), live.estimate.clone(), live.label.clone())
+        };
+        let (Some(frame), Some(estimate)) = (frame, estimate) else { return Err(EnrolError::NoFrame) };
+        let part = estimate.parts.get(req.part).ok_or(EnrolError::NoPart { part: req.part, count: estimate.parts.len() })?;
+        let crop = crop_part(&frame, &part.outline).ok_or(EnrolError::AtBorder { part: req.part })?;
+        let view = crop.view().map_err(|e| EnrolError::Template { part: req.part, source: e.into() })?;
+        let template = Template::from_image(view, &req.type_name, req.id, req.face, None, &self.params)
+            .map_err(|source| EnrolError::Template { part: req.part, source })?;
+        let from = if label.is_empty() { "the current frame".to_string() } else { label };
+        let mut kb = self.templates.lock().unwrap_or_else(|p| p.into_inner()).clone();
+        let replaced = kb.enroll(template, format!("{}: {from}, part {}", req.by, req.part))?;
+        let estimator = Estimator::new(&kb.templates(), self.params.clone())?;
+        let saved = match &self.kb {
+            KbSource::File(path) => {
+                let png = path.with_file_name(format!("{}_{}.png", req.type_name.replace(['/', '\\', '.'], "_"), req.face));
+                crate::imageio::write_png(&png, &crop).map_err(|e| EnrolError::Image {
+                    path: png.clone(),
+                    message: format!("{e}{}", e.source().map(|s| format!(": {s}")).unwrap_or_default()),
+                })?;
+                kb.save(path)?;
+                format!("saved to {} (template image {})", path.display(), png.display())
+            }
+            KbSource::Simulator => "kept in memory only (kb_from_simulator)".to_string(),
+        };
+        *self.estimator.write().unwrap_or_else(|p| p.into_inner()) = Arc::new(estimator);
+        let types = kb.type_count() as u16;
+        *self.templates.lock().unwrap_or_else(|p| p.into_inner()) = kb;
+        self.handshake.lock().unwrap_or_else(|p| p.into_inner()).set_types_enrolled(types);
+        tracing::info!(
+            camera = %self.name,
+            "{} template {} {} (id {}) from part {} of {from}, asked by {}; {saved}",
+            if replaced { "replaced" } else { "enrolled" },
+            req.type_name,
+            req.face,
+            req.id,
+            req.part,
+            req.by
+        );
+        Ok(Enrolled { replaced, saved, from })
+    }
+}
+
+/// Cuts a part out of the frame: a square centred on its outline's centroid (so the new
+/// template's origin, the image centre, is that centroid) with 40 px of belt around it; None
+/// when that square does not fit in the frame.
+pub fn crop_part(frame: &GrayImage, outline: &[Pt]) -> Option<GrayImage> {
+    let (_, c) = crate::vision::geometry::area_centroid(outline);
+    let r = outline.iter().map(|p| (*p - c).norm()).fold(0.0, f64::max);
+    let half = (r + 40.0).ceil() as i64;
+    let (cx, cy) = (c.x.round() as i64, c.y.round() as i64);
+    if cx - half < 0 || cy - half < 0 || cx + half >= frame.width as i64 || cy + half >= frame.height as i64 {
+        return None;
+    }
+    let side = (2 * half + 1) as usize;
+    frame.crop((cx - half) as usize, (cy - half) as usize, side, side)
+}

@@ -1,0 +1,318 @@
+//! The estimator's decision on one part, typed: the verdict and the evidence behind it.
+//!
+//! The estimator decides; this module holds what it decided and renders it, once, for the log
+//! and the operator's "why" (`detail`). Tests assert on the fields, not on the text.
+
+use std::fmt;
+
+use super::geometry::Pt;
+use super::{Face, Reason};
+
+/// A template named by type and face, as the text shows it ("bracket up").
+#[derive(Debug, Clone, PartialEq)]
+pub struct Named {
+    pub type_name: String,
+    pub face: Face,
+}
+
+impl fmt::Display for Named {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} {}", self.type_name, self.face)
+    }
+}
+
+/// What the estimator concluded about a part.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Verdict {
+    Accept,
+    /// The outline comes within 3 px of the frame's edge (bounds of the outline).
+    AtBorder {
+        lo: Pt,
+        hi: Pt,
+    },
+    /// The region is larger than any enrolled part could be.
+    TooLarge {
+        area: f64,
+    },
+    /// No template's outline fits at least `need`; `merged` when the region is also larger
+    /// than the closest template (several parts), which makes it touching rather than unknown.
+    NoFit {
+        need: f64,
+        merged: bool,
+    },
+    /// The best fit is at a scale outside the accepted range.
+    Scale {
+        scale: f64,
+        range: (f64, f64),
+    },
+    /// The outline runs onto something else (`extra`) or is partly hidden (`missing`).
+    Foreign {
+        extra: f64,
+        missing: f64,
+        limit: f64,
+    },
+    /// Another part found in the same region lies on this one.
+    Covered {
+        by: Named,
+    },
+    /// It overlaps another part and the image does not tell which lies on top.
+    OrderUnclear,
+    /// Part of its outline is not seen: `support` of it is explained, `need` required.
+    Unseen {
+        support: f64,
+        need: f64,
+    },
+    /// Another type or face explains the outline nearly as well and its line features are not
+    /// clearly worse.
+    Rival {
+        rival: Rival,
+    },
+    /// The line features agree less than the acceptance threshold.
+    LowConfidence {
+        confidence: f64,
+        threshold: f64,
+    },
+    /// Edge pixels of other material inside the gripper's keep-out footprint.
+    NoClearance {
+        edge_px: usize,
+    },
+    /// Part-sized material beside the parts found in a region that no template explains.
+    Unexplained {
+        area: f64,
+    },
+}
+
+impl Verdict {
+    /// The REASON the verdict gives the PLC.
+    pub fn reason(&self) -> Reason {
+        match self {
+            Verdict::Accept => Reason::Ok,
+            Verdict::AtBorder { .. } => Reason::AtBorder,
+            Verdict::TooLarge { .. } | Verdict::Foreign { .. } | Verdict::OrderUnclear | Verdict::Unseen { .. } => Reason::Touching,
+            Verdict::Unexplained { .. } => Reason::Touching,
+            Verdict::NoFit { merged, .. } => {
+                if *merged {
+                    Reason::Touching
+                } else {
+                    Reason::UnknownType
+                }
+            }
+            Verdict::Scale { .. } => Reason::UnknownType,
+            Verdict::Covered { .. } => Reason::Covered,
+            Verdict::Rival { .. } => Reason::Ambiguous,
+            Verdict::LowConfidence { .. } => Reason::LowConfidence,
+            Verdict::NoClearance { .. } => Reason::NoClearance,
+        }
+    }
+}
+
+impl fmt::Display for Verdict {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Verdict::Accept => f.write_str("accepted"),
+            Verdict::AtBorder { lo, hi } => {
+                write!(f, "its outline reaches the frame border (x {:.1}..{:.1}, y {:.1}..{:.1})", lo.x, hi.x, lo.y, hi.y)
+            }
+            Verdict::TooLarge { area } => write!(f, "region of {area:.0} px^2 is larger than any enrolled part could be"),
+            Verdict::NoFit { need, .. } => write!(f, "no template fits (need {need:.2})"),
+            Verdict::Scale { scale, range } => write!(f, "scale {scale:.3} outside {:.2}..{:.2}", range.0, range.1),
+            Verdict::Foreign { extra, missing, limit } => write!(
+                f,
+                "the outline {} (extra {extra:.3}, missing {missing:.3}, limit {limit:.3})",
+                if extra > limit { "runs onto something else" } else { "is partly hidden" }
+            ),
+            Verdict::Covered { by } => write!(f, "{by} lies on it"),
+            Verdict::OrderUnclear => f.write_str("it overlaps another part and the image does not tell which lies on top"),
+            Verdict::Unseen { support, need } => {
+                write!(
+                    f,
+                    "part of its outline is not seen (explained {support:.3}, need {need:.2}): something unknown lies on or against it"
+                )
+            }
+            Verdict::Rival { rival } => {
+                write!(f, "{} fits almost as well ({:.3}) and its line features are not clearly worse", rival.name, rival.fit)
+            }
+            Verdict::LowConfidence { confidence, threshold } => write!(f, "confidence {confidence:.3} below {threshold:.2}"),
+            Verdict::NoClearance { edge_px } => {
+                write!(f, "{edge_px} edge pixels of other material inside the gripper's keep-out footprint")
+            }
+            Verdict::Unexplained { area } => {
+                write!(f, "{area:.0} px^2 of material beside the parts found here that no enrolled part explains")
+            }
+        }
+    }
+}
+
+/// The closest other type or face.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rival {
+    pub name: Named,
+    /// Its fit (support, in a region) at the tight tolerance.
+    pub fit: f64,
+    /// The best template's at the same tolerance, and that tolerance (px).
+    pub best: f64,
+    pub tolerance: f64,
+    /// Its line features' confidence at its pose.
+    pub confidence: f64,
+}
+
+/// How the part's outline fits its best template on the separate-part path.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OutlineFit {
+    pub best: Named,
+    pub fit: f64,
+    pub inliers: f64,
+    pub coverage: f64,
+    pub extra: f64,
+    pub missing: f64,
+    pub rms: f64,
+    pub tolerance: f64,
+    pub corr_rms: f64,
+    pub scale: f64,
+    /// The next templates: registered (fit) or by correlation distance only.
+    pub next: Vec<(Named, NextFit)>,
+}
+
+/// A runner-up's measure.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum NextFit {
+    Fit(f64),
+    CorrRms(f64),
+}
+
+/// How a part found in a region of several fits (see [`super::clump`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RegionFit {
+    pub best: Named,
+    /// Length fraction of the template's outline the image explains, and the least accepted.
+    pub support: f64,
+    pub need: f64,
+    /// Fraction of it on the region's outline, and the registration's RMS (px).
+    pub coverage: f64,
+    pub rms: f64,
+    pub scale: f64,
+}
+
+/// The line features' agreement and what it was computed with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lines {
+    pub confidence: f64,
+    pub noise: f64,
+    pub contrast: f64,
+    pub lambda: f64,
+}
+
+/// Everything measured about a part, as far as the estimator got.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Evidence {
+    pub outline: Option<OutlineFit>,
+    pub region: Option<RegionFit>,
+    pub lines: Option<Lines>,
+    pub rival: Option<Rival>,
+}
+
+/// The verdict on a part and the evidence behind it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Decision {
+    pub verdict: Verdict,
+    pub evidence: Evidence,
+}
+
+impl Decision {
+    pub fn new(verdict: Verdict, evidence: Evidence) -> Self {
+        Self { verdict, evidence }
+    }
+}
+
+impl fmt::Display for Decision {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let e = &self.evidence;
+        write!(f, "{}", self.verdict)?;
+        if let Some(o) = &e.outline {
+            write!(
+                f,
+                "; best {}: fit {:.3} (inliers {:.3}, coverage {:.3}, extra {:.3}, missing {:.3}, rms {:.2} px, tol {:.2} px), corr rms {:.4}, scale {:.3}",
+                o.best, o.fit, o.inliers, o.coverage, o.extra, o.missing, o.rms, o.tolerance, o.corr_rms, o.scale
+            )?;
+            let next: Vec<String> = o
+                .next
+                .iter()
+                .map(|(n, m)| match m {
+                    NextFit::Fit(v) => format!("{n} fit {v:.3}"),
+                    NextFit::CorrRms(v) => format!("{n} corr rms {v:.4}"),
+                })
+                .collect();
+            write!(f, "; next: {}", if next.is_empty() { "none".to_string() } else { next.join(", ") })?;
+        }
+        if let Some(r) = &e.region {
+            write!(
+                f,
+                "; found in a region of several parts: {} outline explained {:.3} (need {:.2}), on the region's outline {:.3}, rms {:.2} px, scale {:.3}",
+                r.best, r.support, r.need, r.coverage, r.rms, r.scale
+            )?;
+        }
+        if let Some(l) = &e.lines {
+            write!(f, "; confidence {:.3} (noise {:.1}, contrast {:.0}, lambda {:.1})", l.confidence, l.noise, l.contrast, l.lambda)?;
+        }
+        if let Some(r) = &e.rival {
+            write!(f, "; rival {} fit {:.3} vs {:.3} at {:.2} px, confidence {:.3}", r.name, r.fit, r.best, r.tolerance, r.confidence)?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn named() -> Named {
+        Named { type_name: "bracket".into(), face: Face::Up }
+    }
+
+    #[test]
+    fn each_verdict_gives_its_reason() {
+        let rival = Rival { name: named(), fit: 0.9, best: 0.91, tolerance: 3.0, confidence: 0.7 };
+        for (v, r) in [
+            (Verdict::Accept, Reason::Ok),
+            (Verdict::AtBorder { lo: Pt::new(0.0, 0.0), hi: Pt::new(9.0, 9.0) }, Reason::AtBorder),
+            (Verdict::TooLarge { area: 1.0 }, Reason::Touching),
+            (Verdict::NoFit { need: 0.75, merged: false }, Reason::UnknownType),
+            (Verdict::NoFit { need: 0.75, merged: true }, Reason::Touching),
+            (Verdict::Scale { scale: 1.3, range: (0.9, 1.1) }, Reason::UnknownType),
+            (Verdict::Foreign { extra: 0.1, missing: 0.0, limit: 0.06 }, Reason::Touching),
+            (Verdict::Covered { by: named() }, Reason::Covered),
+            (Verdict::OrderUnclear, Reason::Touching),
+            (Verdict::Unseen { support: 0.8, need: 0.93 }, Reason::Touching),
+            (Verdict::Rival { rival }, Reason::Ambiguous),
+            (Verdict::LowConfidence { confidence: 0.3, threshold: 0.5 }, Reason::LowConfidence),
+            (Verdict::NoClearance { edge_px: 4 }, Reason::NoClearance),
+            (Verdict::Unexplained { area: 5000.0 }, Reason::Touching),
+        ] {
+            assert_eq!(v.reason(), r, "{v:?}");
+        }
+    }
+
+    #[test]
+    fn the_text_names_the_verdict_first_then_the_evidence() {
+        let d = Decision::new(
+            Verdict::Covered { by: named() },
+            Evidence {
+                region: Some(RegionFit {
+                    best: Named { type_name: "flange".into(), face: Face::Down },
+                    support: 0.81,
+                    need: 0.93,
+                    coverage: 0.7,
+                    rms: 1.2,
+                    scale: 1.0,
+                }),
+                ..Evidence::default()
+            },
+        );
+        assert_eq!(
+            d.to_string(),
+            "bracket up lies on it; found in a region of several parts: flange down outline explained 0.810 (need 0.93), on the region's outline 0.700, rms 1.20 px, scale 1.000"
+        );
+        let far = Verdict::Foreign { extra: 0.2, missing: 0.0, limit: 0.06 };
+        assert!(far.to_string().starts_with("the outline runs onto something else"), "{far}");
+    }
+}
