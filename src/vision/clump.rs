@@ -170,7 +170,7 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             .map(|k| {
                 let mut pose = init;
                 pose.angle_rad += (k as f64 * ANGLE_SEARCH_STEP).to_radians();
-                (pose, verify(&e.shape, &pose, &ext, &edge, 2.0 * tol, 8).0)
+                (pose, verify(&e.shape, &pose, &ext, &edge, 2.0 * tol, 8, false).0)
             })
             .max_by(|a, b| a.1.total_cmp(&b.1))
             .map_or(init, |(pose, _)| pose);
@@ -179,7 +179,7 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         let duplicate = found.iter().any(|f| {
             f.entry == ei && (f.reg.pose.to - init.to).norm() < 20.0 && angle_diff_deg(f.reg.pose.angle_deg(), init.angle_deg()).abs() < 4.0
         });
-        if duplicate || verify(&e.shape, &init, &ext, &edge, 2.0 * tol, 4).0 < MIN_SUPPORT - 0.2 {
+        if duplicate || verify(&e.shape, &init, &ext, &edge, 2.0 * tol, 4, false).0 < MIN_SUPPORT - 0.2 {
             continue;
         }
         // Registration on the stretch of the region's outline the part can reach: the rest is
@@ -190,11 +190,11 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             continue;
         }
         let rough = register::register(&local, &e.index, init, tol, 4);
-        if verify(&e.shape, &rough.pose, &ext, &edge, tol, 3).0 < MIN_SUPPORT - 0.05 {
+        if verify(&e.shape, &rough.pose, &ext, &edge, tol, 3, false).0 < MIN_SUPPORT - 0.05 {
             continue;
         }
         let reg = register::register(&local, &e.index, rough.pose, tol, 2);
-        let (support, points) = verify(&e.shape, &reg.pose, &ext, &edge, tol, 1);
+        let (support, points) = verify(&e.shape, &reg.pose, &ext, &edge, tol, 1, true);
         if support < MIN_SUPPORT {
             continue;
         }
@@ -511,7 +511,18 @@ struct Probe {
 
 /// The template's outline at `pose`, point by point (every `stride`-th): explained by the
 /// region's outline, or by an edge in the image. Returns the explained fraction and the points.
-fn verify(model: &ShapeModel, pose: &Similarity, ext: &OutlineIndex, edge: &EdgeTest<'_>, tol: f64, stride: usize) -> (f64, Vec<Probe>) {
+/// `moved` also admits the region's outline moved along the normal (the final verification; the
+/// cheap gates before it leave that margin to their lower thresholds).
+#[allow(clippy::too_many_arguments)]
+fn verify(
+    model: &ShapeModel,
+    pose: &Similarity,
+    ext: &OutlineIndex,
+    edge: &EdgeTest<'_>,
+    tol: f64,
+    stride: usize,
+    moved: bool,
+) -> (f64, Vec<Probe>) {
     let mut pts = Vec::with_capacity(model.verify.len() / stride + 1);
     for &(m, n) in model.verify.iter().step_by(stride) {
         let at = pose.apply(m);
@@ -522,9 +533,10 @@ fn verify(model: &ShapeModel, pose: &Similarity, ext: &OutlineIndex, edge: &Edge
         // bent by the part's tolerance and the lens, while the outline of whatever else lies
         // there (a part across it, debris) runs its own way.
         let on_region = ext.nearest(at, tol * pose.scale).is_some()
-            || ext
-                .nearest(at, 2.0 * tol * pose.scale)
-                .is_some_and(|(i, d, q)| ext.normal(i).dot(nn) >= PARALLEL_COS && (q - at).dot(nn).abs() >= PARALLEL_COS * d);
+            || moved
+                && ext
+                    .nearest(at, 2.0 * tol * pose.scale)
+                    .is_some_and(|(i, d, q)| ext.normal(i).dot(nn) >= PARALLEL_COS && (q - at).dot(nn).abs() >= PARALLEL_COS * d);
         let across = edge.across(at, nn);
         pts.push(Probe { at, seen: on_region || across.abs() >= edge.threshold, across });
     }
