@@ -42,14 +42,13 @@ impl Blob {
     }
 }
 
-/// One piece of a closed region: the piece filled, dilated as the whole region was, and within
-/// the region's own mask.
-fn piece_mask(region: &Mat, piece: &Vector<Point>, kernel: &Mat, offset: Point) -> opencv::Result<Mat> {
-    let mut filled = Mat::new_rows_cols_with_default(region.rows(), region.cols(), core::CV_8UC1, core::Scalar::all(0.0))?;
+/// A `rows` x `cols` mask with `contour` (moved by `offset`) filled.
+fn filled(rows: i32, cols: i32, contour: &Vector<Point>, offset: Point) -> opencv::Result<Mat> {
+    let mut mask = Mat::new_rows_cols_with_default(rows, cols, core::CV_8UC1, core::Scalar::all(0.0))?;
     let mut one: Vector<Vector<Point>> = Vector::new();
-    one.push(piece.clone());
+    one.push(contour.clone());
     imgproc::draw_contours(
-        &mut filled,
+        &mut mask,
         &one,
         0,
         core::Scalar::all(255.0),
@@ -59,6 +58,13 @@ fn piece_mask(region: &Mat, piece: &Vector<Point>, kernel: &Mat, offset: Point) 
         i32::MAX,
         offset,
     )?;
+    Ok(mask)
+}
+
+/// One piece of a closed region: the piece filled, dilated as the whole region was, and within
+/// the region's own mask.
+fn piece_mask(region: &Mat, piece: &Vector<Point>, kernel: &Mat, offset: Point) -> opencv::Result<Mat> {
+    let filled = filled(region.rows(), region.cols(), piece, offset)?;
     let mut dilated = Mat::default();
     imgproc::dilate(&filled, &mut dilated, kernel, Point::new(-1, -1), 1, core::BORDER_CONSTANT, core::Scalar::all(0.0))?;
     let mut own = Mat::default();
@@ -190,20 +196,7 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
         let touches_border = touches(r);
         // Fill the dilated region and erode it back: the closing of the part's edge map.
         let m = 2 + p.closing;
-        let mut mask = Mat::new_rows_cols_with_default(r.height + 2 * m, r.width + 2 * m, core::CV_8UC1, core::Scalar::all(0.0))?;
-        let mut one: Vector<Vector<Point>> = Vector::new();
-        one.push(c.clone());
-        imgproc::draw_contours(
-            &mut mask,
-            &one,
-            0,
-            core::Scalar::all(255.0),
-            imgproc::FILLED,
-            imgproc::LINE_8,
-            &core::no_array(),
-            i32::MAX,
-            Point::new(m - r.x, m - r.y),
-        )?;
+        let mask = filled(r.height + 2 * m, r.width + 2 * m, &c, Point::new(m - r.x, m - r.y))?;
         let mut closed = Mat::default();
         imgproc::erode(&mask, &mut closed, &kernel, Point::new(-1, -1), 1, core::BORDER_CONSTANT, core::Scalar::all(0.0))?;
         let mut inner: Vector<Vector<Point>> = Vector::new();
