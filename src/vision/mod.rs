@@ -496,17 +496,19 @@ impl Estimator {
             } else if f.support < p.min_support {
                 Verdict::Unseen { support: f.support, need: p.min_support }
             } else if let Some(rival) = f.rival.and_then(|(ri, rreg, rsupport)| {
+                // The cheap outline tests first: the rival's line features are only scored when
+                // its outline ties.
+                if rsupport < f.support - p.ambiguity_margin || !self.rivals(&whole.outline, f.entry, &f.reg, f.tolerance, ri, &rreg) {
+                    return None;
+                }
                 let rc = confidence(&self.lib.entries[ri].template.segments, &segments, &rreg.pose, diag, lambda);
-                (rsupport >= f.support - p.ambiguity_margin
-                    && self.rivals(&whole.outline, f.entry, &f.reg, f.tolerance, ri, &rreg)
-                    && est.confidence - rc < p.confidence_margin)
-                    .then(|| decide::Rival {
-                        name: named(&self.lib.entries[ri].template),
-                        fit: rsupport,
-                        best: f.support,
-                        tolerance: f.tolerance,
-                        confidence: rc,
-                    })
+                (est.confidence - rc < p.confidence_margin).then(|| decide::Rival {
+                    name: named(&self.lib.entries[ri].template),
+                    fit: rsupport,
+                    best: f.support,
+                    tolerance: f.tolerance,
+                    confidence: rc,
+                })
             }) {
                 evidence.rival = Some(rival.clone());
                 Verdict::Rival { rival }
