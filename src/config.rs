@@ -8,6 +8,7 @@ use std::net::{IpAddr, SocketAddr};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+pub use crate::handshake::PickingOrder;
 use crate::handshake::WordOrder;
 
 /// The file exactly as written.
@@ -267,28 +268,6 @@ pub enum KbSource {
     Simulator,
 }
 
-/// Order of a frame's accepted parts (rejected parts follow in the same order).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum PickingOrder {
-    XAscending,
-    XDescending,
-    YAscending,
-    YDescending,
-    Confidence,
-}
-
-impl PickingOrder {
-    pub fn compare(&self, a: &crate::handshake::PartResult, b: &crate::handshake::PartResult) -> std::cmp::Ordering {
-        match self {
-            PickingOrder::XAscending => a.x_mm.total_cmp(&b.x_mm),
-            PickingOrder::XDescending => b.x_mm.total_cmp(&a.x_mm),
-            PickingOrder::YAscending => a.y_mm.total_cmp(&b.y_mm),
-            PickingOrder::YDescending => b.y_mm.total_cmp(&a.y_mm),
-            PickingOrder::Confidence => b.confidence.total_cmp(&a.confidence),
-        }
-    }
-}
-
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RobotSend {
     Accepted,
@@ -307,6 +286,8 @@ pub struct RobotConfig {
     pub ack_timeout: Duration,
     pub send: RobotSend,
     pub queue_depth: usize,
+    /// Word order of USER_DATA in input words 8-9: the camera's `float_word_order`.
+    pub word_order: WordOrder,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -547,7 +528,7 @@ impl Config {
                         return Err(c.err(rk("address"), "\"\"", "is empty"));
                     }
                     let output_function = c.int(&rk("output_function"), r.output_function, 3, 4)?;
-                    let input_words_at: u16 = c.int(&rk("input_words_at"), r.input_words_at, 0, 65535 - 7)?;
+                    let input_words_at: u16 = c.int(&rk("input_words_at"), r.input_words_at, 0, 65535 - 9)?; // words 0..=9
                     let output_words_at: u16 = c.int(&rk("output_words_at"), r.output_words_at, 0, 65535 - 1)?;
                     Some(RobotConfig {
                         address: r.address.clone(),
@@ -563,6 +544,7 @@ impl Config {
                             other => return Err(c.err(rk("send"), format!("{other:?}"), "is not \"accepted\" or \"all\"")),
                         },
                         queue_depth: c.int(&rk("queue_depth"), r.queue_depth, 1, 10_000)?,
+                        word_order,
                     })
                 }
             };

@@ -28,7 +28,8 @@ pub struct PartResult {
 /// What became of an acquisition.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Outcome {
-    /// The frame was estimated; parts in picking order (empty: no part on the belt).
+    /// The frame was estimated; parts in the order the estimator found them (empty: no part on
+    /// the belt). [`Handshake::complete`] puts them into picking order.
     Parts { parts: Vec<PartResult>, processing_ms: f64 },
     /// No frame, or an unusable one.
     Failed { fault: Fault },
@@ -68,6 +69,30 @@ pub enum WordOrder {
     LowFirst,
 }
 
+/// Order of a frame's parts in the result queue: accepted parts first (after the
+/// expected-type rule), each group in this order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum PickingOrder {
+    #[default]
+    XAscending,
+    XDescending,
+    YAscending,
+    YDescending,
+    Confidence,
+}
+
+impl PickingOrder {
+    pub fn compare(&self, a: &PartResult, b: &PartResult) -> std::cmp::Ordering {
+        match self {
+            PickingOrder::XAscending => a.x_mm.total_cmp(&b.x_mm),
+            PickingOrder::XDescending => b.x_mm.total_cmp(&a.x_mm),
+            PickingOrder::YAscending => a.y_mm.total_cmp(&b.y_mm),
+            PickingOrder::YDescending => b.y_mm.total_cmp(&a.y_mm),
+            PickingOrder::Confidence => b.confidence.total_cmp(&a.confidence),
+        }
+    }
+}
+
 /// A result of an acquisition, as queued for the PLC (`seq` 0: the queue was full, dropped).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Queued {
@@ -78,6 +103,11 @@ pub struct Queued {
     pub index: u16,
     pub count: u16,
     pub processing_ms: f64,
+    /// USER_DATA as latched when the frame was taken.
+    pub user_data: u32,
+    /// Position of the part in the [`Outcome::Parts`] it came from (None: no-part or frame
+    /// error), so that a shell can pair the final result with its estimate.
+    pub detection: Option<usize>,
 }
 
 impl Queued {
@@ -104,6 +134,9 @@ pub struct Settings {
     pub online: bool,
     pub word_order: WordOrder,
     pub types_enrolled: u16,
+    pub picking_order: PickingOrder,
+    /// BOOT_ID: drawn by the appliance at start (non-zero), the same for every camera.
+    pub boot_id: u16,
 }
 
 /// One camera's registers and result queue.
@@ -114,8 +147,11 @@ pub struct Handshake {
     result_ack: u16,
     online: bool,
     expected_type: u16,
+    /// USER_DATA (5-6) as the PLC wrote them.
+    user_data: [u16; 2],
     trigger_ack: bool,
-    busy: Option<(u16, Duration)>,
+    /// The acquisition running: its id, start, and the USER_DATA latched for it.
+    busy: Option<(u16, Duration, u32)>,
     error: bool,
     error_code: u16,
     overrun: bool,
@@ -151,6 +187,7 @@ impl Handshake {
             trigger: false,
             result_ack: 0,
             expected_type: 0,
+            user_data: [0, 0],
             trigger_ack: false,
             busy: None,
             error: false,
@@ -171,15 +208,17 @@ impl Handshake {
         }
     }
 
-    /// READY = ONLINE and not BUSY and CAMERA_OK (a full queue does not clear it).
+    /// READY = ONLINE and not BUSY and CAMERA_OK and not ERROR (a full queue does not clear
+    /// it): exactly when a TRIGGER edge starts an acquisition, so a PLC that waits for READY
+    /// never triggers into an error it has not cleared.
     pub fn ready(&self) -> bool {
-        self.online && self.busy.is_none() && self.camera_ok
+        self.online && self.busy.is_none() && self.camera_ok && !self.error
     }
 
-    /// Whether a frame taken now could be used: ready and no error waiting to be cleared (a
-    /// free-running camera leaves frames in its inbox meanwhile rather than consume them unseen).
+    /// Whether a frame taken now could be used (the same as READY: a free-running camera leaves
+    /// frames in its inbox while not ready rather than consume them unseen).
     pub fn can_acquire(&self) -> bool {
-        self.ready() && !self.error
+        self.ready()
     }
 
     pub fn status(&self) -> u16 {
@@ -216,20 +255,15 @@ impl Handshake {
     /// The value of one register (reserved addresses read 0).
     pub fn word(&self, a: u16) -> u16 {
         let head = self.queue.front();
-        let float = |v: f32, second: bool| {
-            let bits = v.to_bits();
-            let (hi, lo) = ((bits >> 16) as u16, bits as u16);
-            match (self.settings.word_order, second) {
-                (WordOrder::HighFirst, false) | (WordOrder::LowFirst, true) => hi,
-                _ => lo,
-            }
-        };
+        let float = |v: f32, second: bool| self.split(v.to_bits(), second);
         match a {
             addr::TRIGGER => self.trigger as u16,
             addr::RESULT_ACK => self.result_ack,
             addr::CLEAR_ERROR => 0,
             addr::ONLINE => self.online as u16,
             addr::EXPECTED_TYPE => self.expected_type,
+            5 | 6 => self.user_data[(a - addr::USER_DATA) as usize],
+            addr::BOOT_ID => self.settings.boot_id,
             addr::STATUS => self.status(),
             addr::HEARTBEAT => self.heartbeat,
             addr::ERROR_CODE => self.error_code,
@@ -251,7 +285,7 @@ impl Handshake {
             addr::ROBOT_ACK_SEQ => self.robot.ack_seq,
             addr::DEBRIS_COUNT => self.debris,
             addr::RESULT_ACK_IGNORED => self.ack_ignored,
-            addr::RESULT_SEQ..=219 => {
+            addr::RESULT_SEQ..=addr::RESULT_END => {
                 let Some(q) = head else { return 0 };
                 let p = &q.part;
                 match a {
@@ -277,10 +311,29 @@ impl Handshake {
                     214 | 215 => float(p.x_mm as f32, a == 215),
                     216 | 217 => float(p.y_mm as f32, a == 217),
                     addr::PROCESSING_TIME => u16_word(q.processing_ms * 10.0),
+                    219 | 220 => self.split(q.user_data, a == 220),
                     _ => 0,
                 }
             }
             _ => 0,
+        }
+    }
+
+    /// One word of a two-word value (a float's bits, a uint32) in the camera's word order.
+    fn split(&self, v: u32, second: bool) -> u16 {
+        let (hi, lo) = ((v >> 16) as u16, v as u16);
+        match (self.settings.word_order, second) {
+            (WordOrder::HighFirst, false) | (WordOrder::LowFirst, true) => hi,
+            _ => lo,
+        }
+    }
+
+    /// USER_DATA as a number, from its two words in the camera's word order.
+    pub fn user_data(&self) -> u32 {
+        let [a, b] = self.user_data.map(u32::from);
+        match self.settings.word_order {
+            WordOrder::HighFirst => (a << 16) | b,
+            WordOrder::LowFirst => (b << 16) | a,
         }
     }
 
@@ -292,24 +345,44 @@ impl Handshake {
     /// A PLC write of one register. The caller has checked that the address is writable and the
     /// value allowed (see [`crate::modbus::service`]).
     pub fn write(&mut self, a: u16, v: u16, now: Duration) -> Option<Command> {
-        match a {
-            addr::TRIGGER => {
-                let edge = v == 1 && !self.trigger;
-                self.trigger = v == 1;
-                if v == 0 {
-                    self.trigger_ack = false;
-                }
-                if !edge {
-                    return None;
-                }
-                if !self.ready() || self.error {
-                    self.missed = self.missed.wrapping_add(1);
-                    self.counters.missed_triggers += 1;
-                    return None;
-                }
-                self.trigger_ack = true;
-                Some(self.begin(now))
+        self.write_block(a, &[v], now)
+    }
+
+    /// A PLC write of consecutive registers (one FC16): every other register takes its value
+    /// first and the TRIGGER edge is taken last, so USER_DATA, EXPECTED_TYPE or CLEAR_ERROR
+    /// written in the same request as TRIGGER already hold for that acquisition.
+    pub fn write_block(&mut self, start: u16, values: &[u16], now: Duration) -> Option<Command> {
+        let mut trigger = None;
+        for (a, v) in (start..).zip(values) {
+            if a == addr::TRIGGER {
+                trigger = Some(*v);
+            } else {
+                self.write_one(a, *v);
             }
+        }
+        trigger.and_then(|v| self.write_trigger(v, now))
+    }
+
+    fn write_trigger(&mut self, v: u16, now: Duration) -> Option<Command> {
+        let edge = v == 1 && !self.trigger;
+        self.trigger = v == 1;
+        if v == 0 {
+            self.trigger_ack = false;
+        }
+        if !edge {
+            return None;
+        }
+        if !self.ready() {
+            self.missed = self.missed.wrapping_add(1);
+            self.counters.missed_triggers += 1;
+            return None;
+        }
+        self.trigger_ack = true;
+        Some(self.begin(now))
+    }
+
+    fn write_one(&mut self, a: u16, v: u16) {
+        match a {
             addr::RESULT_ACK => {
                 self.result_ack = v;
                 match self.queue.front() {
@@ -321,78 +394,94 @@ impl Handshake {
                         self.counters.ignored_acks += 1;
                     }
                 }
-                None
             }
-            addr::CLEAR_ERROR => {
-                if v == 1 {
-                    self.error = false;
-                    self.error_code = error_code::NONE;
-                    self.overrun = false;
-                }
-                None
+            addr::CLEAR_ERROR if v == 1 => {
+                self.error = false;
+                self.error_code = error_code::NONE;
+                self.overrun = false;
             }
-            addr::ONLINE => {
-                self.online = v == 1;
-                None
-            }
-            addr::EXPECTED_TYPE => {
-                self.expected_type = v;
-                None
-            }
-            _ => None,
+            addr::ONLINE => self.online = v == 1,
+            addr::EXPECTED_TYPE => self.expected_type = v,
+            5 | 6 => self.user_data[(a - addr::USER_DATA) as usize] = v,
+            _ => {}
         }
     }
 
     fn begin(&mut self, now: Duration) -> Command {
         self.acq_count = self.acq_count.wrapping_add(1);
         self.counters.acquisitions += 1;
-        self.busy = Some((self.acq_count, now));
+        self.busy = Some((self.acq_count, now, self.user_data()));
         Command::Acquire { acq_id: self.acq_count }
     }
 
     /// Free-running cameras start an acquisition for each frame the source yields, when READY
     /// and not in ERROR; otherwise the frame is skipped (None).
     pub fn free_run(&mut self, now: Duration) -> Option<Command> {
-        if self.ready() && !self.error { Some(self.begin(now)) } else { None }
+        if self.ready() { Some(self.begin(now)) } else { None }
     }
 
-    /// Reports an acquisition: queues its results (before BUSY clears, so a PLC that waits for
-    /// BUSY = 0 after TRIGGER_ACK sees them). Reports for other acquisitions are ignored.
     /// Reports the debris counted in the frame being completed (DEBRIS_COUNT); call before
     /// [`Handshake::complete`] so that a PLC reading after BUSY clears sees both together.
     pub fn set_debris(&mut self, count: usize) {
         self.debris = count.min(65535) as u16;
     }
 
+    /// Reports an acquisition: decides its final results and queues them (before BUSY clears,
+    /// so a PLC that waits for BUSY = 0 after TRIGGER_ACK sees them). Reports for other
+    /// acquisitions are ignored.
     ///
     /// Returns the frame's final results as the PLC gets them (after the expected-type rule, in
     /// picking order, a no-part or frame-error result included), whether the queue had room for
     /// them or not: the one truth every other consumer (robot, page, counters, log) takes. Empty
     /// when `acq_id` is not the acquisition running.
     pub fn complete(&mut self, acq_id: u16, outcome: Outcome, now: Duration) -> Vec<Queued> {
-        let Some((busy_id, started)) = self.busy else { return Vec::new() };
+        let Some((busy_id, started, user_data)) = self.busy else { return Vec::new() };
         if busy_id != acq_id {
             return Vec::new();
         }
         let mut results: Vec<Queued> = Vec::new();
         match outcome {
             Outcome::Parts { parts, processing_ms } if parts.is_empty() => {
-                results.push(Queued { seq: 0, acq_id, part: no_part(Reason::NoPart), index: 0, count: 0, processing_ms });
+                results.push(Queued {
+                    seq: 0,
+                    acq_id,
+                    part: no_part(Reason::NoPart),
+                    index: 0,
+                    count: 0,
+                    processing_ms,
+                    user_data,
+                    detection: None,
+                });
             }
             Outcome::Parts { parts, processing_ms } => {
                 let count = parts.len().min(65535) as u16;
-                for (i, mut p) in parts.into_iter().enumerate() {
+                let mut parts: Vec<(usize, PartResult)> = parts.into_iter().enumerate().collect();
+                for (_, p) in &mut parts {
                     if self.expected_type != 0 && p.accepted && p.type_id != self.expected_type {
                         p.accepted = false;
                         p.reason = Reason::WrongType;
                     }
-                    results.push(Queued { seq: 0, acq_id, part: p, index: (i + 1).min(65535) as u16, count, processing_ms });
+                }
+                let order = self.settings.picking_order;
+                parts.sort_by(|(_, a), (_, b)| b.accepted.cmp(&a.accepted).then_with(|| order.compare(a, b)));
+                for (i, (detection, p)) in parts.into_iter().enumerate() {
+                    let index = (i + 1).min(65535) as u16;
+                    results.push(Queued { seq: 0, acq_id, part: p, index, count, processing_ms, user_data, detection: Some(detection) });
                 }
             }
             Outcome::Failed { fault } => {
                 self.error = true;
                 self.error_code = fault.code();
-                results.push(Queued { seq: 0, acq_id, part: no_part(Reason::FrameError), index: 0, count: 0, processing_ms: 0.0 });
+                results.push(Queued {
+                    seq: 0,
+                    acq_id,
+                    part: no_part(Reason::FrameError),
+                    index: 0,
+                    count: 0,
+                    processing_ms: 0.0,
+                    user_data,
+                    detection: None,
+                });
             }
         }
         for r in results.iter_mut() {

@@ -19,6 +19,18 @@ pub enum Kind {
     Bits,
     /// One half of an IEEE-754 float32 (word order per camera).
     F32,
+    /// An unsigned 32-bit value in two words (word order per camera, as floats).
+    U32,
+}
+
+impl Kind {
+    /// Registers one value takes.
+    pub const fn words(self) -> u16 {
+        match self {
+            Kind::F32 | Kind::U32 => 2,
+            _ => 1,
+        }
+    }
 }
 
 /// One register (or the first word of a float).
@@ -38,7 +50,7 @@ pub struct Register {
 /// Highest address of the map plus one; any address at or beyond is exception 0x02.
 pub const SIZE: u16 = 300;
 /// Value of MAP_VERSION: bumped when a PLC program written for the old map would break.
-pub const MAP_VERSION: u16 = 2;
+pub const MAP_VERSION: u16 = 3;
 
 pub mod addr {
     pub const TRIGGER: u16 = 0;
@@ -46,6 +58,7 @@ pub mod addr {
     pub const CLEAR_ERROR: u16 = 2;
     pub const ONLINE: u16 = 3;
     pub const EXPECTED_TYPE: u16 = 4;
+    pub const USER_DATA: u16 = 5;
     pub const STATUS: u16 = 100;
     pub const HEARTBEAT: u16 = 101;
     pub const ERROR_CODE: u16 = 102;
@@ -67,6 +80,7 @@ pub mod addr {
     pub const ROBOT_ACK_SEQ: u16 = 118;
     pub const DEBRIS_COUNT: u16 = 119;
     pub const RESULT_ACK_IGNORED: u16 = 120;
+    pub const BOOT_ID: u16 = 123;
     pub const RESULT_SEQ: u16 = 200;
     pub const ACQ_ID: u16 = 201;
     pub const DECISION: u16 = 202;
@@ -83,6 +97,9 @@ pub mod addr {
     pub const X_F32: u16 = 214;
     pub const Y_F32: u16 = 216;
     pub const PROCESSING_TIME: u16 = 218;
+    pub const RESULT_USER_DATA: u16 = 219;
+    /// Last address of the result block.
+    pub const RESULT_END: u16 = 220;
 }
 
 /// STATUS (100) bits.
@@ -155,12 +172,20 @@ pub const MAP: &[Register] = &[
         "0 accepts any type; otherwise accepted parts of other types are rejected with REASON 6 (wrong type).",
     ),
     reg(
+        addr::USER_DATA,
+        "USER_DATA",
+        ReadWrite,
+        U32,
+        "any",
+        "The PLC's value for the next frame (e.g. its conveyor encoder count), latched at the TRIGGER edge (free-run: when the frame is taken) and returned with that frame's results in 219-220 and robot words 8-9. In one FC16 with TRIGGER, the new value is latched (every write of a request lands before the TRIGGER edge is taken).",
+    ),
+    reg(
         addr::STATUS,
         "STATUS",
         ReadOnly,
         Bits,
         "bits",
-        "b0 READY (ONLINE and not BUSY and CAMERA_OK), b1 TRIGGER_ACK, b2 BUSY, b3 RESULT_VALID, b4 RESULT_OVERRUN, b5 ERROR, b6 ONLINE, b7 CAMERA_OK.",
+        "b0 READY (ONLINE and not BUSY and CAMERA_OK and not ERROR: a TRIGGER edge now starts an acquisition), b1 TRIGGER_ACK, b2 BUSY, b3 RESULT_VALID, b4 RESULT_OVERRUN, b5 ERROR, b6 ONLINE, b7 CAMERA_OK.",
     ),
     reg(addr::HEARTBEAT, "HEARTBEAT", ReadOnly, U16, "count", "+1 every second (wraps)."),
     reg(addr::ERROR_CODE, "ERROR_CODE", ReadOnly, U16, "code", "0 none, 1 camera (no frame), 2 frame (unusable), 3 knowledge base."),
@@ -182,7 +207,7 @@ pub const MAP: &[Register] = &[
         "count",
         "Trigger edges while BUSY, offline or in ERROR: nothing started (wraps).",
     ),
-    reg(addr::MAP_VERSION, "MAP_VERSION", ReadOnly, U16, "version", "2 (see \"Changes\" below)."),
+    reg(addr::MAP_VERSION, "MAP_VERSION", ReadOnly, U16, "version", "3 (see \"Changes\" below)."),
     reg(
         addr::LAST_CYCLE_TIME,
         "LAST_CYCLE_TIME",
@@ -232,6 +257,14 @@ pub const MAP: &[Register] = &[
     ),
     reg(addr::RESULT_ACK_IGNORED, "RESULT_ACK_IGNORED", ReadOnly, U16, "count", "RESULT_ACK writes that named no pending result (wraps)."),
     reg(
+        addr::BOOT_ID,
+        "BOOT_ID",
+        ReadOnly,
+        U16,
+        "id",
+        "Random, non-zero, drawn at every start of the appliance. When it changes, the appliance restarted: queued results are gone and RESULT_SEQ, ACQ_COUNT and HEARTBEAT start again (see \"After a restart\").",
+    ),
+    reg(
         addr::RESULT_SEQ,
         "RESULT_SEQ",
         ReadOnly,
@@ -261,12 +294,19 @@ pub const MAP: &[Register] = &[
     reg(addr::X_F32, "X_F32", ReadOnly, F32, "mm", "X as float32, words 214-215."),
     reg(addr::Y_F32, "Y_F32", ReadOnly, F32, "mm", "Y as float32, words 216-217."),
     reg(addr::PROCESSING_TIME, "PROCESSING_TIME", ReadOnly, U16, "0.1 ms", "Estimate time of this result's frame (saturates)."),
+    reg(
+        addr::RESULT_USER_DATA,
+        "RESULT_USER_DATA",
+        ReadOnly,
+        U32,
+        "any",
+        "USER_DATA as latched for this result's frame (every result of the frame, no-part and frame-error results too).",
+    ),
 ];
 
-/// The register defined at `addr` (the first word of a float names the float; its second word
-/// returns the same entry).
+/// The register defined at `addr` (the second word of a two-word value returns the same entry).
 pub fn lookup(addr: u16) -> Option<&'static Register> {
-    MAP.iter().find(|r| r.addr == addr || (r.kind == Kind::F32 && r.addr + 1 == addr))
+    MAP.iter().find(|r| addr >= r.addr && addr < r.addr + r.kind.words())
 }
 
 /// Whether a PLC may write `addr`.
@@ -280,6 +320,7 @@ fn kind_name(k: Kind) -> &'static str {
         I16 => "int16",
         Bits => "bits",
         F32 => "float32 (2 words)",
+        U32 => "uint32 (2 words)",
     }
 }
 
@@ -292,15 +333,15 @@ pub fn markdown() -> String {
         "Holding registers, function codes 3 (read), 6 and 16 (write). MAP_VERSION = {MAP_VERSION}. \"Address\" is the 0-based protocol address; \"PLC\" the 1-based number PLC tools show (400001 + address). Addresses 0..{} not listed are reserved: they read as 0 and refuse writes (exception 0x02).\n\n",
         SIZE - 1
     ));
-    s.push_str("Each camera is its own Modbus unit id (unit 0 and 255 reach the first camera; an unknown unit id gets exception 0x0B). Floats are IEEE-754 in two registers, high word first unless the camera's `float_word_order = \"low-first\"`. A read of 100..220 in one request is one consistent snapshot.\n\n");
+    s.push_str("Each camera is its own Modbus unit id (unit 0 and 255 reach the first camera; an unknown unit id gets exception 0x0B). Floats (IEEE-754) and uint32 values take two registers, high word first unless the camera's `float_word_order = \"low-first\"`. A read of 100..220 in one request is one consistent snapshot.\n\n");
     s.push_str("| Address | PLC | Name | Access | Type | Unit | Description |\n|---:|---:|---|---|---|---|---|\n");
     for r in MAP {
         let access = match r.access {
             ReadWrite => "R/W",
             ReadOnly => "R",
         };
-        let address = if r.kind == F32 { format!("{}-{}", r.addr, r.addr + 1) } else { r.addr.to_string() };
-        let plc = if r.kind == F32 {
+        let address = if r.kind.words() == 2 { format!("{}-{}", r.addr, r.addr + 1) } else { r.addr.to_string() };
+        let plc = if r.kind.words() == 2 {
             format!("{}-{}", 400_001 + r.addr as u32, 400_002 + r.addr as u32)
         } else {
             (400_001 + r.addr as u32).to_string()
@@ -316,7 +357,9 @@ pub fn markdown() -> String {
     s.push_str("| 0x02 Illegal data address | any address outside 0..299; a write to a read-only or reserved register |\n");
     s.push_str("| 0x03 Illegal data value | a value other than 0 or 1 written to TRIGGER, CLEAR_ERROR or ONLINE |\n");
     s.push_str("| 0x0B Gateway target failed | a unit id that is no camera |\n");
+    s.push_str("\n## After a restart\n\nBOOT_ID (123) is drawn anew at every start. A PLC keeps the last value it read; when it differs (or it was 0: the PLC itself restarted), the appliance restarted: results queued before are gone and will not come, RESULT_SEQ, ACQ_COUNT and HEARTBEAT count from the start again, EXPECTED_TYPE and USER_DATA read 0 and ONLINE reads its configured start value. Then: drop any result the PLC was waiting for (the part it belonged to is to be treated as not inspected: re-trigger or reject it), write EXPECTED_TYPE and ONLINE again, and continue the handshake from READY.\n");
     s.push_str("\n## Changes\n\n");
+    s.push_str("MAP_VERSION 3 (from 2): READY is now 0 while ERROR is set (it was 1, and a trigger then was missed: a PLC that waited only for READY triggered into an error); USER_DATA (5-6), BOOT_ID (123) and RESULT_USER_DATA (219-220, the result block now ends at 220) are new; robot input words 8-9 carry USER_DATA. A MAP_VERSION 2 program keeps working: it now waits at READY instead of losing a trigger while ERROR is set, and should clear ERROR (CLEAR_ERROR) when it sees it.\n\n");
     s.push_str("MAP_VERSION 2 (from 1): REASON gains 9 `covered` (another part lies partly on this one: grasping it would drag the one on top) and 10 `no clearance` (the gripper's keep-out footprint around the part holds other material); DEBRIS_COUNT (119) is new. Every other address and meaning is unchanged. A MAP_VERSION 1 program that treats any DECISION 2 as a reject keeps working; one that looks REASON up in a table of nine entries must grow it.\n");
     s
 }
@@ -371,11 +414,13 @@ mod tests {
     #[test]
     fn the_table_is_ordered_unique_and_inside_the_map() {
         for w in MAP.windows(2) {
-            let end = w[0].addr + if w[0].kind == Kind::F32 { 2 } else { 1 };
+            let end = w[0].addr + w[0].kind.words();
             assert!(end <= w[1].addr, "{} overlaps {}", w[0].name, w[1].name);
         }
         assert!(MAP.iter().all(|r| r.addr < SIZE));
-        assert!(writable(addr::TRIGGER) && !writable(addr::STATUS) && !writable(5) && !writable(213));
+        assert!(writable(addr::TRIGGER) && !writable(addr::STATUS) && !writable(7) && !writable(213));
+        assert!(writable(5) && writable(6), "both words of USER_DATA");
         assert_eq!(lookup(213).unwrap().name, "ANGLE_F32");
+        assert_eq!(lookup(220).unwrap().name, "RESULT_USER_DATA");
     }
 }

@@ -95,5 +95,15 @@ async fn a_trigger_with_no_file_is_a_camera_error() {
     let b = read(&mut ctx, 102, 1).await;
     assert_eq!(b[0], 1, "ERROR_CODE 1: camera");
     assert_eq!(read(&mut ctx, addr::REASON, 1).await[0], 7, "frame error result");
+    // READY is 0 while ERROR is set: a PLC that waits for READY does not trigger into it.
+    write(&mut ctx, addr::TRIGGER, 0).await;
+    let s = read(&mut ctx, addr::STATUS, 1).await[0];
+    assert_eq!(s & (status::READY | status::ERROR), status::ERROR, "STATUS {s:#010b}");
+    let missed = read(&mut ctx, addr::MISSED_TRIGGERS, 1).await[0];
+    write(&mut ctx, addr::TRIGGER, 1).await;
+    write(&mut ctx, addr::TRIGGER, 0).await;
+    assert_eq!(read(&mut ctx, addr::MISSED_TRIGGERS, 1).await[0], missed + 1, "a trigger in ERROR is missed");
+    write(&mut ctx, addr::CLEAR_ERROR, 1).await;
+    wait_status(&mut ctx, |s| s & status::READY != 0, Duration::from_secs(5)).await;
     running.stop().await;
 }

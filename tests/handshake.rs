@@ -5,12 +5,19 @@ mod common;
 
 use std::time::Duration;
 
-use lfi_bridge::handshake::{Command, Fault, Handshake, Outcome, PartResult, Settings, WordOrder};
+use lfi_bridge::handshake::{Command, Fault, Handshake, Outcome, PartResult, PickingOrder, Settings, WordOrder};
 use lfi_bridge::registers::{addr, error_code, status};
 use lfi_bridge::vision::Reason;
 
 fn hs(depth: usize) -> Handshake {
-    Handshake::new(Settings { queue_depth: depth, online: true, word_order: WordOrder::HighFirst, types_enrolled: 3 })
+    Handshake::new(Settings {
+        queue_depth: depth,
+        online: true,
+        word_order: WordOrder::HighFirst,
+        types_enrolled: 3,
+        picking_order: PickingOrder::XAscending,
+        boot_id: 77,
+    })
 }
 
 fn part(type_id: u16, x: f64) -> PartResult {
@@ -168,6 +175,24 @@ fn expected_type_turns_other_types_into_wrong_type_rejects() {
 }
 
 #[test]
+fn picking_order_is_made_after_the_expected_type_rule() {
+    let mut h = hs(8);
+    h.write(addr::EXPECTED_TYPE, 2, ms(0));
+    let id = trigger(&mut h, 0).unwrap();
+    // Detection order: a clevis (3) left of a lever (2), a rejected part in between.
+    let mut rejected = part(1, 1.5);
+    (rejected.accepted, rejected.reason) = (false, Reason::Covered);
+    let done = h.complete(id, Outcome::Parts { parts: vec![part(3, 1.0), rejected, part(2, 2.0)], processing_ms: 1.0 }, ms(1));
+    let got: Vec<_> = done.iter().map(|r| (r.index, r.part.type_id, r.part.accepted, r.part.reason, r.detection)).collect();
+    assert_eq!(
+        got,
+        vec![(1, 2, true, Reason::Ok, Some(2)), (2, 3, false, Reason::WrongType, Some(0)), (3, 1, false, Reason::Covered, Some(1)),],
+        "the one part the PLC may pick comes first; the rest by x"
+    );
+    assert_eq!((h.word(addr::PART_INDEX), h.word(addr::TYPE_ID), h.word(addr::DECISION)), (1, 2, 1));
+}
+
+#[test]
 fn complete_returns_the_final_results_every_consumer_takes() {
     let mut h = hs(1);
     h.write(addr::EXPECTED_TYPE, 2, ms(0));
@@ -192,15 +217,24 @@ fn a_fault_names_its_error_code_and_stops_acquiring_until_cleared() {
         assert!(!h.can_acquire(), "busy");
         h.complete(id, Outcome::Failed { fault }, ms(1));
         assert_eq!(h.word(addr::ERROR_CODE), code);
-        assert!(h.ready() && !h.can_acquire(), "{fault:?}: ready, but a frame now would be consumed unseen");
+        assert!(!h.can_acquire(), "{fault:?}: a frame now would be consumed unseen");
+        assert_eq!(h.word(addr::STATUS) & (status::READY | status::ERROR), status::ERROR, "{fault:?}: READY while ERROR");
         h.write(addr::CLEAR_ERROR, 1, ms(2));
         assert!(h.can_acquire());
+        assert!(h.word(addr::STATUS) & status::READY != 0, "{fault:?}: READY again once cleared");
     }
 }
 
 #[test]
 fn heartbeat_floats_and_stale_reports() {
-    let mut h = Handshake::new(Settings { queue_depth: 4, online: true, word_order: WordOrder::LowFirst, types_enrolled: 3 });
+    let mut h = Handshake::new(Settings {
+        queue_depth: 4,
+        online: true,
+        word_order: WordOrder::LowFirst,
+        types_enrolled: 3,
+        picking_order: PickingOrder::XAscending,
+        boot_id: 77,
+    });
     h.tick(Duration::from_millis(65_537_500));
     assert_eq!(h.word(addr::HEARTBEAT), 1, "65537 s wraps to 1");
     assert_eq!(h.word(addr::MAP_VERSION), lfi_bridge::registers::MAP_VERSION);
@@ -294,11 +328,69 @@ mod over_tcp {
 
 #[test]
 fn the_debris_count_of_the_frame_is_served_with_its_results() {
-    let mut h = Handshake::new(Settings { queue_depth: 4, online: true, word_order: WordOrder::HighFirst, types_enrolled: 3 });
+    let mut h = Handshake::new(Settings {
+        queue_depth: 4,
+        online: true,
+        word_order: WordOrder::HighFirst,
+        types_enrolled: 3,
+        picking_order: PickingOrder::XAscending,
+        boot_id: 77,
+    });
     let Some(Command::Acquire { acq_id }) = h.write(addr::TRIGGER, 1, Duration::ZERO) else { panic!("no acquisition") };
     h.set_debris(3);
     h.complete(acq_id, Outcome::Parts { parts: vec![], processing_ms: 1.0 }, Duration::from_millis(5));
     assert_eq!(h.word(addr::DEBRIS_COUNT), 3);
     h.set_debris(70_000);
     assert_eq!(h.word(addr::DEBRIS_COUNT), 65535, "saturates");
+}
+
+#[test]
+fn user_data_is_latched_at_the_trigger_edge_and_comes_back_with_every_result_of_its_frame() {
+    let mut h = hs(8);
+    // 0x0001_2345 = 74565: over 16 bits, high word first.
+    h.write_block(addr::USER_DATA, &[0x0001, 0x2345], ms(0));
+    assert_eq!(h.read(addr::USER_DATA, 2), vec![0x0001, 0x2345], "reads back as written");
+    let id = trigger(&mut h, 1).unwrap();
+    h.write_block(addr::USER_DATA, &[0x0009, 0x9999], ms(2)); // the belt moves on during BUSY
+    h.complete(id, Outcome::Parts { parts: vec![part(1, 1.0), part(2, 2.0)], processing_ms: 1.0 }, ms(3));
+    for _ in 0..2 {
+        assert_eq!(h.read(219, 2), vec![0x0001, 0x2345], "the value at the trigger, in every result of the frame");
+        let seq = h.word(addr::RESULT_SEQ);
+        h.write(addr::RESULT_ACK, seq, ms(4));
+    }
+    let id = trigger(&mut h, 5).unwrap();
+    h.complete(id, Outcome::Failed { fault: Fault::Camera }, ms(6));
+    assert_eq!((h.word(addr::REASON), h.read(219, 2)), (Reason::FrameError.code(), vec![0x0009, 0x9999]), "frame errors too");
+    assert_eq!(h.read(219, 2), h.read(addr::USER_DATA, 2));
+}
+
+#[test]
+fn one_fc16_writing_user_data_and_trigger_latches_the_new_value() {
+    let mut h = hs(8);
+    h.write_block(addr::USER_DATA, &[0, 1], ms(0));
+    // TRIGGER=1, RESULT_ACK=0, CLEAR_ERROR=0, ONLINE=1, EXPECTED_TYPE=0, USER_DATA=0x0002_0003.
+    let cmd = h.write_block(addr::TRIGGER, &[1, 0, 0, 1, 0, 2, 3], ms(1));
+    let Some(Command::Acquire { acq_id }) = cmd else { panic!("the trigger edge starts an acquisition") };
+    h.write(addr::TRIGGER, 0, ms(1));
+    let done = h.complete(acq_id, Outcome::Parts { parts: vec![], processing_ms: 1.0 }, ms(2));
+    assert_eq!(done[0].user_data, 0x0002_0003);
+    assert_eq!(h.read(219, 2), vec![2, 3]);
+}
+
+#[test]
+fn user_data_follows_the_float_word_order() {
+    let mut h = Handshake::new(Settings {
+        queue_depth: 4,
+        online: true,
+        word_order: WordOrder::LowFirst,
+        types_enrolled: 3,
+        picking_order: PickingOrder::XAscending,
+        boot_id: 77,
+    });
+    h.write_block(addr::USER_DATA, &[0x5678, 0x1234], ms(0));
+    assert_eq!(h.user_data(), 0x1234_5678);
+    let Some(Command::Acquire { acq_id }) = h.free_run(ms(1)) else { panic!("free-run latches when the frame is taken") };
+    h.complete(acq_id, Outcome::Parts { parts: vec![part(1, 1.0)], processing_ms: 1.0 }, ms(2));
+    assert_eq!(h.read(219, 2), vec![0x5678, 0x1234]);
+    assert_eq!(h.word(addr::BOOT_ID), 77);
 }

@@ -3,48 +3,11 @@
 
 mod common;
 
-use std::io::{Read, Write};
-use std::net::SocketAddr;
 use std::time::Duration;
 
 use common::appliance::*;
+use common::http::http;
 use lfi_bridge::registers::{self as map, addr, status};
-
-/// A minimal HTTP/1.1 client: (status, content type, body).
-fn http(addr: SocketAddr, method: &str, path: &str, headers: &[(&str, &str)], body: &str) -> (u16, String, Vec<u8>) {
-    let mut s = std::net::TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-    let mut req = format!("{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Length: {}\r\n", body.len());
-    for (k, v) in headers {
-        req.push_str(&format!("{k}: {v}\r\n"));
-    }
-    req.push_str("\r\n");
-    req.push_str(body);
-    s.write_all(req.as_bytes()).unwrap();
-    let mut raw = Vec::new();
-    s.read_to_end(&mut raw).unwrap();
-    let split = raw.windows(4).position(|w| w == b"\r\n\r\n").expect("response head");
-    let head = String::from_utf8_lossy(&raw[..split]).to_string();
-    let status: u16 = head.split_whitespace().nth(1).unwrap().parse().unwrap();
-    let ctype = head.lines().find_map(|l| l.to_ascii_lowercase().strip_prefix("content-type: ").map(str::to_string)).unwrap_or_default();
-    let mut body = raw[split + 4..].to_vec();
-    if head.to_ascii_lowercase().contains("transfer-encoding: chunked") {
-        // De-chunk.
-        let mut out = Vec::new();
-        let mut rest = &body[..];
-        loop {
-            let nl = rest.windows(2).position(|w| w == b"\r\n").unwrap();
-            let n = usize::from_str_radix(std::str::from_utf8(&rest[..nl]).unwrap().trim(), 16).unwrap();
-            if n == 0 {
-                break;
-            }
-            out.extend_from_slice(&rest[nl + 2..nl + 2 + n]);
-            rest = &rest[nl + 2 + n + 2..];
-        }
-        body = out;
-    }
-    (status, ctype, body)
-}
 
 async fn one_frame(running: &lfi_bridge::appliance::Running) {
     let mut ctx = plc(running.modbus_addr, 1).await;
@@ -105,7 +68,7 @@ async fn enrolling_needs_the_token_and_shows_in_the_registers() {
     let running = start(&config("", "")).await;
     let h = running.http_addr.unwrap();
     one_frame(&running).await;
-    let body = r#"{"part": 0, "type": "newpart", "id": 9, "face": "up"}"#;
+    let body = r#"{"part": 1, "type": "newpart", "id": 9, "face": "up"}"#;
     let post = |hdrs: Vec<(&'static str, &'static str)>, b: &'static str| async move {
         tokio::task::spawn_blocking(move || {
             http(h, "POST", "/api/camera/1/enroll", &[&[("Content-Type", "application/json")], hdrs.as_slice()].concat(), b)
@@ -186,11 +149,7 @@ async fn headless_chromium_shows_the_frame_and_the_registers_the_plc_reads() {
         let cell = format!("id=\"reg-{}\">", r.addr);
         let shown =
             html.split(&cell).nth(1).and_then(|s| s.split('<').next()).unwrap_or_else(|| panic!("register {} not on the page", r.name));
-        let expect: Vec<String> = if r.kind == map::Kind::F32 {
-            vec![words[r.addr as usize].to_string(), words[r.addr as usize + 1].to_string()]
-        } else {
-            vec![words[r.addr as usize].to_string()]
-        };
+        let expect: Vec<String> = (0..r.kind.words()).map(|i| words[(r.addr + i) as usize].to_string()).collect();
         assert_eq!(shown, expect.join(" "), "{} on the page vs Modbus", r.name);
         checked += 1;
     }

@@ -34,7 +34,7 @@ fn register_map_md_is_generated_from_the_table() {
 }
 
 /// The codes the estimator can give are the codes the map documents (MAP_VERSION 2: covered,
-/// no clearance, the debris count).
+/// no clearance, the debris count; MAP_VERSION 3: READY in ERROR, USER_DATA, BOOT_ID).
 #[test]
 fn the_map_documents_every_reject_reason_and_the_debris_count() {
     let reason = map::lookup(addr::REASON).unwrap();
@@ -42,10 +42,21 @@ fn the_map_documents_every_reject_reason_and_the_debris_count() {
         let entry = format!("{} {}", r.code(), r.as_str());
         assert!(reason.doc.contains(&entry), "REASON does not document {entry:?}: {}", reason.doc);
     }
-    assert_eq!(map::MAP_VERSION, 2);
+    assert_eq!(map::MAP_VERSION, 3);
     assert_eq!(map::lookup(119).unwrap().name, "DEBRIS_COUNT");
     let doc = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/register-map.md")).unwrap();
-    for needle in ["9 covered", "10 no clearance", "| 119 | 400120 | DEBRIS_COUNT |", "MAP_VERSION = 2", "MAP_VERSION 2 (from 1)"] {
+    for needle in [
+        "9 covered",
+        "10 no clearance",
+        "| 119 | 400120 | DEBRIS_COUNT |",
+        "| 5-6 | 400006-400007 | USER_DATA | R/W | uint32 (2 words) |",
+        "| 123 | 400124 | BOOT_ID | R |",
+        "| 219-220 | 400220-400221 | RESULT_USER_DATA | R | uint32 (2 words) |",
+        "MAP_VERSION = 3",
+        "MAP_VERSION 3 (from 2)",
+        "MAP_VERSION 2 (from 1)",
+        "## After a restart",
+    ] {
         assert!(doc.contains(needle), "register-map.md lacks {needle:?}");
     }
 }
@@ -103,7 +114,7 @@ async fn every_register_reads_and_writes_as_documented() {
     for r in MAP.iter().filter(|r| r.access == Access::ReadOnly) {
         assert_eq!(exception(ctx.write_single_register(r.addr, 0).await).await, ExceptionCode::IllegalDataAddress, "{}", r.name);
     }
-    for a in [5u16, 99, 119, 121, 199, 220, 299] {
+    for a in [7u16, 99, 119, 121, 199, 221, 299] {
         assert_eq!(exception(ctx.write_single_register(a, 0).await).await, ExceptionCode::IllegalDataAddress, "reserved {a}");
     }
     // Values: 0/1 only in TRIGGER, CLEAR_ERROR, ONLINE.
@@ -138,7 +149,7 @@ async fn exceptions_follow_the_specification_order() {
     assert_eq!(exception(ctx.read_holding_registers(176, 125).await).await, ExceptionCode::IllegalDataAddress);
     assert_eq!(exception(ctx.read_holding_registers(300, 1).await).await, ExceptionCode::IllegalDataAddress);
     assert_eq!(exception(ctx.read_holding_registers(65535, 1).await).await, ExceptionCode::IllegalDataAddress);
-    assert_eq!(exception(ctx.write_multiple_registers(3, &[7, 7, 7]).await).await, ExceptionCode::IllegalDataAddress);
+    assert_eq!(exception(ctx.write_multiple_registers(5, &[7, 7, 7]).await).await, ExceptionCode::IllegalDataAddress);
     assert_eq!(exception(ctx.write_single_register(65535, 2).await).await, ExceptionCode::IllegalDataAddress);
     assert_eq!(exception(ctx.write_multiple_registers(0, &[2, 0]).await).await, ExceptionCode::IllegalDataValue);
     assert_eq!(read(&mut ctx, addr::TRIGGER, 1).await[0], 0, "a refused FC16 writes nothing");

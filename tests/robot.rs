@@ -9,7 +9,7 @@ use std::time::Duration;
 use common::appliance::{cycle, plc, read, start};
 use common::fanuc::{Fanuc, Picked, Program, tp_program};
 use lfi_bridge::config::{RobotConfig, RobotSend};
-use lfi_bridge::handshake::PartResult;
+use lfi_bridge::handshake::{PartResult, Queued, WordOrder};
 use lfi_bridge::registers::RobotView;
 use lfi_bridge::registers::robot_status;
 use lfi_bridge::robot::{Action, Link};
@@ -30,6 +30,7 @@ fn robot_config(fanuc: &Fanuc, ack_timeout: Duration) -> RobotConfig {
         ack_timeout,
         send: RobotSend::Accepted,
         queue_depth: 1000,
+        word_order: WordOrder::HighFirst,
     }
 }
 
@@ -46,9 +47,23 @@ fn part(i: usize) -> PartResult {
     }
 }
 
+/// Part `i` as the handshake hands it on: its frame's USER_DATA is 70000 + i (over 16 bits).
+fn queued(i: usize) -> Queued {
+    Queued {
+        seq: 0,
+        acq_id: i as u16,
+        part: part(i),
+        index: 1,
+        count: 1,
+        processing_ms: 1.0,
+        user_data: 70_000 + i as u32,
+        detection: Some(0),
+    }
+}
+
 struct Rig {
     fanuc: Fanuc,
-    tx: tokio::sync::mpsc::UnboundedSender<(u16, PartResult)>,
+    tx: tokio::sync::mpsc::UnboundedSender<Queued>,
     view: Arc<Mutex<RobotView>>,
     stop_link: CancellationToken,
     stop_robot: CancellationToken,
@@ -95,6 +110,7 @@ fn check_in_order(picked: &[Picked], n: usize) {
         assert_eq!(p.x, (want.x_mm * 10.0).round() as i32, "part {i} out of order or lost");
         assert_eq!(p.y, (want.y_mm * 10.0).round() as i32);
         assert_eq!((p.type_id, p.face, p.confidence), (want.type_id, want.face, 900));
+        assert_eq!(p.user_data, queued(i).user_data, "part {i}: USER_DATA in words 8-9");
         let a = ((want.angle_deg + 180.0).rem_euclid(360.0) - 180.0) * 100.0;
         assert!((p.angle as f64 - a).abs() <= 0.5001, "part {i}: angle {} vs {a}", p.angle);
     }
@@ -107,7 +123,7 @@ fn check_in_order(picked: &[Picked], n: usize) {
 async fn five_hundred_parts_arrive_in_order_none_lost_or_duplicated() {
     let r = rig(Duration::from_millis(1), Duration::from_secs(5), Duration::from_secs(5)).await;
     for i in 0..500 {
-        r.tx.send((i as u16, part(i))).unwrap();
+        r.tx.send(queued(i)).unwrap();
     }
     r.until("all delivered", Duration::from_secs(60), |v| v.delivered == 500 && v.queue == 0).await;
     let v = r.view();
@@ -115,11 +131,11 @@ async fn five_hundred_parts_arrive_in_order_none_lost_or_duplicated() {
     assert!(v.bits & robot_status::CONNECTED != 0);
     let (picked, fanuc) = r.finish().await;
     check_in_order(&picked, 500);
-    // Words 1..7 always went in one request before DATA_SEQ alone.
+    // Words 1..9 always went in one request before DATA_SEQ alone.
     let writes = fanuc.state.lock().unwrap().writes.clone();
     let data: Vec<_> = writes.iter().filter(|(a, _)| *a == IN || *a == IN + 1).collect();
     for pair in data.chunks(2) {
-        assert_eq!((pair[0].0, pair[0].1.len()), (IN + 1, 7));
+        assert_eq!((pair[0].0, pair[0].1.len()), (IN + 1, 9));
         assert_eq!((pair[1].0, pair[1].1.len()), (IN, 1));
     }
 }
@@ -128,7 +144,7 @@ async fn five_hundred_parts_arrive_in_order_none_lost_or_duplicated() {
 async fn a_robot_restart_mid_stream_loses_and_repeats_nothing() {
     let mut r = rig(Duration::from_millis(3), Duration::from_secs(5), Duration::from_secs(5)).await;
     for i in 0..120 {
-        r.tx.send((0, part(i))).unwrap();
+        r.tx.send(queued(i)).unwrap();
     }
     r.until("some delivered", Duration::from_secs(20), |v| v.delivered >= 40).await;
     r.fanuc.restart(Duration::from_millis(300)).await;
@@ -148,17 +164,17 @@ fn ms(v: u64) -> Duration {
     Duration::from_millis(v)
 }
 
-/// The part writes among `actions`: (DATA_SEQ, words 1..=7).
-fn sends(actions: &[Action]) -> Vec<(u16, [u16; 7])> {
+/// The part writes among `actions`: (DATA_SEQ, words 1..=9).
+fn sends(actions: &[Action]) -> Vec<(u16, [u16; 9])> {
     actions.iter().filter_map(|a| if let Action::Send { seq, words } = a { Some((*seq, *words)) } else { None }).collect()
 }
 
 #[test]
 fn nothing_is_written_while_the_robot_is_not_ready() {
-    let mut link = Link::new(10, Duration::from_secs(5));
+    let mut link = Link::new(10, Duration::from_secs(5), WordOrder::HighFirst);
     link.on_connected(ms(0));
     for i in 0..3 {
-        assert!(link.enqueue(part(i)));
+        assert!(link.enqueue(queued(i)));
     }
     for t in 0..60 {
         assert_eq!(link.on_outputs(0, 0, ms(5 * t)), None, "no DATA_SEQ while not ready");
@@ -174,10 +190,10 @@ fn nothing_is_written_while_the_robot_is_not_ready() {
 
 #[test]
 fn an_ack_timeout_is_flagged_once_and_the_part_kept() {
-    let mut link = Link::new(10, ms(200));
+    let mut link = Link::new(10, ms(200), WordOrder::HighFirst);
     link.on_connected(ms(0));
-    link.enqueue(part(0));
-    link.enqueue(part(1));
+    link.enqueue(queued(0));
+    link.enqueue(queued(1));
     let first = link.on_outputs(READY, 0, ms(0)).expect("the first part is written");
     let Action::Send { seq, .. } = first else { panic!("{first:?}") };
     // The deadline is the first moment that needs the time (after the heartbeat due at once).
@@ -203,10 +219,10 @@ fn an_ack_timeout_is_flagged_once_and_the_part_kept() {
 
 #[test]
 fn a_wrong_ack_is_ignored_and_counted() {
-    let mut link = Link::new(10, Duration::from_secs(5));
+    let mut link = Link::new(10, Duration::from_secs(5), WordOrder::HighFirst);
     link.on_connected(ms(0));
-    link.enqueue(part(0));
-    link.enqueue(part(1));
+    link.enqueue(queued(0));
+    link.enqueue(queued(1));
     let Some(Action::Send { seq, .. }) = link.on_outputs(READY, 0, ms(0)) else { panic!("first part") };
     assert_eq!(link.on_outputs(READY, seq.wrapping_add(1000), ms(5)), None, "a wrong ack consumes nothing");
     assert_eq!(link.on_outputs(READY, seq.wrapping_add(1000), ms(10)), None);
@@ -218,10 +234,10 @@ fn a_wrong_ack_is_ignored_and_counted() {
 
 #[test]
 fn after_a_restart_a_part_acknowledged_meanwhile_counts_and_one_not_is_written_again() {
-    let mut link = Link::new(10, Duration::from_secs(5));
+    let mut link = Link::new(10, Duration::from_secs(5), WordOrder::HighFirst);
     link.on_connected(ms(0));
     for i in 0..3 {
-        link.enqueue(part(i));
+        link.enqueue(queued(i));
     }
     let Some(Action::Send { seq: s1, .. }) = link.on_outputs(READY, 0, ms(0)) else { panic!() };
     // The robot took it, and the connection dropped before we read its ACK_SEQ.
@@ -242,7 +258,7 @@ fn after_a_restart_a_part_acknowledged_meanwhile_counts_and_one_not_is_written_a
 
 #[test]
 fn the_heartbeat_advances_once_a_second_while_connected() {
-    let mut link = Link::new(10, Duration::from_secs(5));
+    let mut link = Link::new(10, Duration::from_secs(5), WordOrder::HighFirst);
     assert_eq!(link.poll_timeout(), None, "nothing to do before a connection");
     link.on_connected(ms(0));
     let mut beats = Vec::new();
@@ -272,7 +288,7 @@ async fn a_fifth_connection_and_the_idle_timeout_do_not_lose_parts() {
     // Idle timeout shorter than... nothing: the link polls every 5 ms; extra clients come and go.
     let r = rig(Duration::from_millis(2), Duration::from_secs(5), Duration::from_millis(250)).await;
     for i in 0..60 {
-        r.tx.send((0, part(i))).unwrap();
+        r.tx.send(queued(i)).unwrap();
     }
     let mut others = Vec::new();
     for _ in 0..5 {

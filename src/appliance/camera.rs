@@ -9,18 +9,26 @@ use std::time::{Duration, Instant};
 
 use super::source::{Source, SourceError};
 use crate::calibration::Calibration;
-use crate::config::{PickingOrder, Trigger};
-use crate::handshake::{Command, Fault, Handshake, Outcome, PartResult};
+use crate::config::Trigger;
+use crate::handshake::{Command, Fault, Handshake, Outcome, PartResult, Queued};
 use crate::vision::{Estimator, FrameEstimate, GrayImage, PartEstimate};
 
 /// The estimator a camera uses; replaced whole when the operator enrolls a template.
 pub type SharedEstimator = Arc<std::sync::RwLock<Arc<Estimator>>>;
 
 /// What the operator view shows of a camera: the latest frame and estimate, and counters.
+///
+/// Everything here comes from the handshake's final results (after EXPECTED_TYPE, in picking
+/// order), the same the PLC, the robot link and the log get.
 #[derive(Default)]
 pub struct Live {
     pub frame: Option<Arc<GrayImage>>,
+    /// The latest frame's estimate, its parts in picking order (`parts[i]` has PART_INDEX
+    /// `i + 1`) with the final verdict.
     pub estimate: Option<FrameEstimate>,
+    /// The latest acquisition's final results, as queued for the PLC (a no-part or frame-error
+    /// result included).
+    pub results: Vec<Queued>,
     /// Increments with every frame shown (the page reloads the picture when it changes).
     pub seq: u64,
     pub label: String,
@@ -37,13 +45,16 @@ pub struct Live {
     /// The latest cycle times (trigger to results), ms, newest last.
     pub cycle_ms: std::collections::VecDeque<f64>,
     pub last_error: Option<String>,
+    /// ACQ_ID of `results`.
+    pub acq_id: u16,
+    /// ACQ_ID of `frame` and `estimate` (older than `acq_id` after a failed acquisition).
+    pub frame_acq_id: u16,
 }
 
 /// Everything a worker needs.
 pub struct Worker {
     pub name: String,
     pub trigger: Trigger,
-    pub order: PickingOrder,
     pub roi: Option<[usize; 4]>,
     pub estimator: SharedEstimator,
     pub calibration: Calibration,
@@ -54,7 +65,7 @@ pub struct Worker {
     pub started: Instant,
     pub stop: Arc<AtomicBool>,
     /// Accepted (or all) results for the robot link, if one is configured.
-    pub robot: Option<tokio::sync::mpsc::UnboundedSender<(u16, PartResult)>>,
+    pub robot: Option<tokio::sync::mpsc::UnboundedSender<Queued>>,
     pub robot_sends_all: bool,
 }
 
@@ -113,6 +124,7 @@ impl Worker {
 
     fn process(&mut self, acq_id: u16, frame: Result<super::source::Frame, SourceError>, t0: Instant) {
         let mut debris = 0;
+        let mut estimated = None;
         let outcome = match frame {
             Err(e) => {
                 let fault = if matches!(e, SourceError::Unusable(_)) { Fault::Frame } else { Fault::Camera };
@@ -127,24 +139,10 @@ impl Worker {
                     Outcome::Failed { fault: Fault::Frame }
                 }
                 Ok(fe) => {
-                    let parts = self.results(&fe.parts);
-                    for (p, r) in fe.parts.iter().zip(&parts) {
-                        if p.accepted {
-                            tracing::info!(camera = %self.name, acq_id, "accept {} {} angle {:.2} deg at ({:.1}, {:.1}) mm, confidence {:.3}", p.type_name.as_deref().unwrap_or("?"), p.face.map(|f| f.as_str()).unwrap_or("?"), r.angle_deg, r.x_mm, r.y_mm, p.confidence);
-                        } else {
-                            tracing::info!(camera = %self.name, acq_id, "reject ({}) at ({:.1}, {:.1}) px", p.reason, p.x, p.y);
-                        }
-                        tracing::debug!(camera = %self.name, acq_id, "{}", p.detail());
-                    }
-                    if parts.is_empty() {
-                        tracing::info!(camera = %self.name, acq_id, frame = %f.label, "no part");
-                    }
+                    let parts = fe.parts.iter().map(|p| self.result(p)).collect();
                     let processing_ms = fe.timings.total;
-                    if fe.debris > 0 {
-                        tracing::info!(camera = %self.name, acq_id, "{} piece(s) of debris on the belt", fe.debris);
-                    }
                     debris = fe.debris;
-                    self.note_frame(f.image, f.label, fe);
+                    estimated = Some((f.image, f.label, fe));
                     Outcome::Parts { parts, processing_ms }
                 }
             },
@@ -155,18 +153,42 @@ impl Worker {
             hs.set_debris(debris);
             hs.complete(acq_id, outcome, self.started.elapsed())
         };
-        // The robot gets what the PLC gets (the handshake's final results, the expected-type
-        // rule applied there), the rejected ones only with `send = "all"`.
+        // From here on every consumer takes the handshake's final results: the robot gets what
+        // the PLC gets (the rejected ones only with `send = "all"`), the log, the page and the
+        // counters the same parts in the same order.
         if let Some(tx) = &self.robot {
-            for r in results.into_iter().filter(|r| r.is_part() && (r.part.accepted || self.robot_sends_all)) {
-                let _ = tx.send((acq_id, r.part));
+            for r in results.iter().filter(|r| r.is_part() && (r.part.accepted || self.robot_sends_all)) {
+                let _ = tx.send(r.clone());
             }
         }
+        let estimated = estimated.map(|(image, label, fe)| (image, label, in_final_order(fe, &results)));
+        if let Some((_, label, fe)) = &estimated {
+            self.log(acq_id, label, fe, &results);
+        }
         let cycle = t0.elapsed().as_secs_f64() * 1e3;
-        let mut live = self.live.lock().unwrap_or_else(|p| p.into_inner());
-        live.cycle_ms.push_back(cycle);
-        while live.cycle_ms.len() > 512 {
-            live.cycle_ms.pop_front();
+        self.note_results(acq_id, results, estimated, cycle);
+    }
+
+    /// One line per final result, with the estimate's numbers at debug level.
+    fn log(&self, acq_id: u16, label: &str, fe: &FrameEstimate, results: &[Queued]) {
+        for (r, p) in results.iter().filter(|r| r.is_part()).zip(&fe.parts) {
+            let (index, count) = (r.index, r.count);
+            let name = p.type_name.as_deref().unwrap_or("?");
+            if r.part.accepted {
+                let face = p.face.map(|f| f.as_str()).unwrap_or("?");
+                let (a, x, y, c) = (r.part.angle_deg, r.part.x_mm, r.part.y_mm, r.part.confidence);
+                tracing::info!(camera = %self.name, acq_id, part = index, of = count, "accept {name} {face} angle {a:.2} deg at ({x:.1}, {y:.1}) mm, confidence {c:.3}");
+            } else {
+                let (x, y) = (r.part.x_mm, r.part.y_mm);
+                tracing::info!(camera = %self.name, acq_id, part = index, of = count, "reject ({}) {name} at ({x:.1}, {y:.1}) mm, ({:.1}, {:.1}) px", r.part.reason, p.x, p.y);
+            }
+            tracing::debug!(camera = %self.name, acq_id, part = index, "{}", p.detail());
+        }
+        if fe.parts.is_empty() {
+            tracing::info!(camera = %self.name, acq_id, frame = %label, "no part");
+        }
+        if fe.debris > 0 {
+            tracing::info!(camera = %self.name, acq_id, "{} piece(s) of debris on the belt", fe.debris);
         }
     }
 
@@ -190,26 +212,20 @@ impl Worker {
         }
     }
 
-    /// Robot-frame results in picking order: accepted parts first.
-    fn results(&self, parts: &[PartEstimate]) -> Vec<PartResult> {
-        let mut out: Vec<PartResult> = parts
-            .iter()
-            .map(|p| {
-                let (x, y, a) = self.calibration.apply(p.x, p.y, p.angle_deg);
-                PartResult {
-                    accepted: p.accepted,
-                    reason: p.reason,
-                    type_id: p.type_id,
-                    face: p.face.map(|f| f.code()).unwrap_or(0),
-                    angle_deg: a,
-                    x_mm: x,
-                    y_mm: y,
-                    confidence: p.confidence,
-                }
-            })
-            .collect();
-        out.sort_by(|a, b| b.accepted.cmp(&a.accepted).then_with(|| self.order.compare(a, b)));
-        out
+    /// A part's result in the robot frame, as the estimate left it (the handshake makes the
+    /// final one).
+    fn result(&self, p: &PartEstimate) -> PartResult {
+        let (x, y, a) = self.calibration.apply(p.x, p.y, p.angle_deg);
+        PartResult {
+            accepted: p.accepted,
+            reason: p.reason,
+            type_id: p.type_id,
+            face: p.face.map(|f| f.code()).unwrap_or(0),
+            angle_deg: a,
+            x_mm: x,
+            y_mm: y,
+            confidence: p.confidence,
+        }
     }
 
     fn note_error(&self, msg: String) {
@@ -218,22 +234,48 @@ impl Worker {
         live.last_error = Some(msg);
     }
 
-    fn note_frame(&self, image: GrayImage, label: String, fe: FrameEstimate) {
+    /// The operator view's copy of an acquisition: counters from the final results (a no-part
+    /// or frame-error result counts as a reject with its reason, as the PLC got it).
+    fn note_results(&self, acq_id: u16, results: Vec<Queued>, estimated: Option<(GrayImage, String, FrameEstimate)>, cycle_ms: f64) {
         let mut live = self.live.lock().unwrap_or_else(|p| p.into_inner());
-        live.frames += 1;
-        for p in &fe.parts {
-            if p.accepted {
+        for r in &results {
+            if r.part.accepted {
                 live.accepted += 1;
             } else {
-                live.rejected[p.reason.code() as usize] += 1;
+                live.rejected[r.part.reason.code() as usize] += 1;
             }
         }
+        live.cycle_ms.push_back(cycle_ms);
+        while live.cycle_ms.len() > 512 {
+            live.cycle_ms.pop_front();
+        }
+        if results.is_empty() {
+            return; // not the acquisition running: the handshake ignored it
+        }
+        live.acq_id = acq_id;
+        live.results = results;
+        let Some((image, label, fe)) = estimated else { return };
+        live.frames += 1;
         live.debris_total += fe.debris as u64;
         live.debris_last = fe.debris as u64;
         live.frame = Some(Arc::new(image));
+        live.frame_acq_id = acq_id;
         live.estimate = Some(fe);
         live.label = label;
         live.seq += 1;
         live.at_s = self.started.elapsed().as_secs_f64();
     }
+}
+
+/// The estimate's parts in the final results' order (picking order), each with its final
+/// verdict: `parts[i]` is the part with PART_INDEX `i + 1`.
+fn in_final_order(mut fe: FrameEstimate, results: &[Queued]) -> FrameEstimate {
+    let mut detected: Vec<Option<PartEstimate>> = std::mem::take(&mut fe.parts).into_iter().map(Some).collect();
+    for r in results {
+        if let Some(mut p) = r.detection.and_then(|d| detected.get_mut(d)).and_then(Option::take) {
+            p.overrule(r.part.accepted, r.part.reason);
+            fe.parts.push(p);
+        }
+    }
+    fe
 }

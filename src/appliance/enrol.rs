@@ -13,6 +13,8 @@ use crate::vision::{Estimator, Face, GrayImage, Pt, Template};
 /// What to enrol: part `part` of the camera's current frame as `type_name` (id `id`), `face`.
 #[derive(Debug, Clone)]
 pub struct EnrolRequest {
+    /// The part's PART_INDEX in the current frame (1.. in picking order, as the PLC and the
+    /// operator view number it).
     pub part: usize,
     pub type_name: String,
     pub id: u16,
@@ -37,7 +39,7 @@ pub struct Enrolled {
 pub enum EnrolError {
     #[error("no frame yet: trigger one first")]
     NoFrame,
-    #[error("the current frame has no part {part} (it has {count})")]
+    #[error("the current frame has no part {part} (PART_INDEX 1..={count})")]
     NoPart { part: usize, count: usize },
     #[error("part {part} is too close to the frame border to cut out a template with a margin")]
     AtBorder { part: usize },
@@ -74,7 +76,8 @@ impl CameraHandle {
             (live.frame.clone(), live.estimate.clone(), live.label.clone())
         };
         let (Some(frame), Some(estimate)) = (frame, estimate) else { return Err(EnrolError::NoFrame) };
-        let part = estimate.parts.get(req.part).ok_or(EnrolError::NoPart { part: req.part, count: estimate.parts.len() })?;
+        let part =
+            estimate.parts.get(req.part.wrapping_sub(1)).ok_or(EnrolError::NoPart { part: req.part, count: estimate.parts.len() })?;
         let crop = crop_part(&frame, &part.outline).ok_or(EnrolError::AtBorder { part: req.part })?;
         let view = crop.view().map_err(|e| EnrolError::Template { part: req.part, source: e.into() })?;
         let template = Template::from_image(view, &req.type_name, req.id, req.face, None, &self.params)

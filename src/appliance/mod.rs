@@ -21,7 +21,8 @@ use crate::kb::KnowledgeBase;
 use crate::modbus::server::{self, Station, Stations, Stats};
 use crate::sim::Simulator;
 use crate::vision::{Estimator, Params, Template};
-use camera::{Live, Worker};
+pub use camera::Live;
+use camera::Worker;
 use source::{DirSource, SimSource, Source, VideoSource};
 
 /// Why the appliance cannot start; each names the camera or address at fault.
@@ -118,9 +119,21 @@ fn source_for(cam: &CameraConfig) -> Result<Box<dyn Source>, StartError> {
     })
 }
 
+/// A random, non-zero BOOT_ID for this start (the standard library's per-process random hash
+/// keys, mixed with the time and the process id: different at every start, no extra crate).
+fn draw_boot_id() -> u16 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u128(std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0));
+    h.write_u32(std::process::id());
+    (h.finish() % 65535) as u16 + 1
+}
+
 /// Starts everything; returns once the Modbus server listens.
 pub async fn start(cfg: &Config) -> Result<Running, StartError> {
     let started = Instant::now();
+    let boot_id = draw_boot_id();
+    tracing::info!("BOOT_ID {boot_id}");
     let stop = Arc::new(AtomicBool::new(false));
     let params = Params { accept_threshold: cfg.accept_threshold, ..Params::default() };
     let mut cameras = Vec::new();
@@ -141,6 +154,8 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             online: cam.online,
             word_order: cam.word_order,
             types_enrolled: types,
+            picking_order: cam.picking_order,
+            boot_id,
         })));
         let (tx, rx) = std::sync::mpsc::channel();
         let live = Arc::new(Mutex::new(Live::default()));
@@ -157,7 +172,6 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
         let worker = Worker {
             name: cam.name.clone(),
             trigger: cam.trigger,
-            order: cam.picking_order,
             roi: cam.roi,
             estimator: estimator.clone(),
             calibration,

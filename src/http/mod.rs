@@ -211,16 +211,23 @@ struct Lamp {
     on: bool,
 }
 
+/// One final result of the latest acquisition, as the PLC got it.
 #[derive(Serialize)]
 struct PartView {
-    index: usize,
+    acq_id: u16,
+    /// PART_INDEX: 1.. in picking order; 0 for a no-part or frame-error result.
+    index: u16,
     accepted: bool,
     reason: &'static str,
+    type_id: u16,
     type_name: Option<String>,
     face: Option<&'static str>,
     angle_deg: f64,
     x_px: f64,
     y_px: f64,
+    /// Robot frame, as in the result registers.
+    x_mm: f64,
+    y_mm: f64,
     confidence: f64,
     detail: String,
 }
@@ -262,7 +269,11 @@ fn decode(words: &[u16], order: WordOrder) -> Vec<RegisterView> {
     MAP.iter()
         .map(|r| {
             let a = r.addr as usize;
-            let raw: Vec<u16> = if r.kind == Kind::F32 { words[a..a + 2].to_vec() } else { vec![words[a]] };
+            let raw: Vec<u16> = words[a..a + r.kind.words() as usize].to_vec();
+            let joined = match order {
+                WordOrder::HighFirst => ((raw[0] as u32) << 16) | raw.get(1).copied().unwrap_or(0) as u32,
+                WordOrder::LowFirst => ((raw.get(1).copied().unwrap_or(0) as u32) << 16) | raw[0] as u32,
+            };
             let w = raw[0];
             let value = match (r.kind, r.unit) {
                 (Kind::I16, "0.01 deg") => format!("{:.2} deg", w as i16 as f64 / 100.0),
@@ -271,13 +282,8 @@ fn decode(words: &[u16], order: WordOrder) -> Vec<RegisterView> {
                 (Kind::U16, "0.1 ms") => format!("{:.1} ms", w as f64 / 10.0),
                 (Kind::U16, "0.001") => format!("{:.3}", w as f64 / 1000.0),
                 (Kind::Bits, _) => format!("{w:08b}"),
-                (Kind::F32, unit) => {
-                    let bits = match order {
-                        WordOrder::HighFirst => ((raw[0] as u32) << 16) | raw[1] as u32,
-                        WordOrder::LowFirst => ((raw[1] as u32) << 16) | raw[0] as u32,
-                    };
-                    format!("{:.3} {unit}", f32::from_bits(bits))
-                }
+                (Kind::F32, unit) => format!("{:.3} {unit}", f32::from_bits(joined)),
+                (Kind::U32, _) => joined.to_string(),
                 _ => w.to_string(),
             };
             RegisterView {
@@ -326,25 +332,36 @@ fn camera_view(c: &CameraHandle) -> CameraView {
         cycle_p95_ms: p95,
         histogram,
         histogram_bin_ms: bin,
-        parts: live
-            .estimate
-            .iter()
-            .flat_map(|fe| fe.parts.iter().enumerate())
-            .map(|(i, p)| PartView {
-                index: i,
-                accepted: p.accepted,
-                reason: p.reason.as_str(),
-                type_name: p.type_name.clone(),
-                face: p.face.map(|f| f.as_str()),
-                angle_deg: p.angle_deg,
-                x_px: p.x,
-                y_px: p.y,
-                confidence: p.confidence,
-                detail: p.detail(),
-            })
-            .collect(),
+        parts: part_views(&live),
         last_error: live.last_error.clone(),
     }
+}
+
+/// The latest acquisition's final results, each with its estimate when the frame was estimated.
+fn part_views(live: &crate::appliance::Live) -> Vec<PartView> {
+    let estimate = live.estimate.as_ref().filter(|_| live.frame_acq_id == live.acq_id);
+    live.results
+        .iter()
+        .map(|r| {
+            let p = estimate.and_then(|fe| fe.parts.get((r.index as usize).wrapping_sub(1))).filter(|_| r.is_part());
+            PartView {
+                acq_id: r.acq_id,
+                index: r.index,
+                accepted: r.part.accepted,
+                reason: r.part.reason.as_str(),
+                type_id: r.part.type_id,
+                type_name: p.and_then(|p| p.type_name.clone()),
+                face: p.and_then(|p| p.face.map(|f| f.as_str())),
+                angle_deg: r.part.angle_deg,
+                x_px: p.map(|p| p.x).unwrap_or(0.0),
+                y_px: p.map(|p| p.y).unwrap_or(0.0),
+                x_mm: r.part.x_mm,
+                y_mm: r.part.y_mm,
+                confidence: r.part.confidence,
+                detail: p.map(|p| p.detail()).unwrap_or_else(|| r.part.reason.as_str().to_string()),
+            }
+        })
+        .collect()
 }
 
 async fn api_state(State(state): State<AppState>) -> Response {

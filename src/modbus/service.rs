@@ -41,10 +41,7 @@ pub fn handle(hs: &mut Handshake, req: &Request<'_>, may_write: bool, now: Durat
                 return Err(ExceptionCode::IllegalDataValue);
             }
             check_writes(*start, values)?;
-            let mut cmds = Vec::new();
-            for (i, v) in values.iter().enumerate() {
-                cmds.extend(hs.write(start + i as u16, *v, now));
-            }
+            let cmds = hs.write_block(*start, values, now).into_iter().collect();
             Ok((Response::WriteMultipleRegisters(*start, values.len() as u16), cmds))
         }
         _ => Err(ExceptionCode::IllegalFunction),
@@ -73,7 +70,7 @@ fn check_writes(start: u16, values: &[u16]) -> Result<(), ExceptionCode> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::handshake::{Settings, WordOrder};
+    use crate::handshake::{PickingOrder, Settings, WordOrder};
     use crate::modbus::frame;
 
     /// One request PDU (hex) through the framing's parser, the service and the encoder, against
@@ -81,7 +78,14 @@ mod tests {
     fn check(request: &str, may_write: bool, expect: &str) {
         let hex = |s: &str| -> Vec<u8> { s.split_whitespace().map(|b| u8::from_str_radix(b, 16).expect("hex byte")).collect() };
         let pdu = hex(request);
-        let mut hs = Handshake::new(Settings { queue_depth: 4, online: true, word_order: WordOrder::HighFirst, types_enrolled: 3 });
+        let mut hs = Handshake::new(Settings {
+            queue_depth: 4,
+            online: true,
+            word_order: WordOrder::HighFirst,
+            types_enrolled: 3,
+            picking_order: PickingOrder::XAscending,
+            boot_id: 77,
+        });
         let result = frame::parse_request(&pdu).and_then(|req| handle(&mut hs, &req, may_write, Duration::ZERO).map(|(r, _)| r));
         let adu = frame::encode(1, 1, pdu.first().copied().unwrap_or(0), &result);
         let got: Vec<String> = adu[frame::HEADER..].iter().map(|b| format!("{b:02x}")).collect();
@@ -90,8 +94,9 @@ mod tests {
 
     #[test]
     fn requests_and_their_answers() {
-        // FC3: MAP_VERSION (107) reads 2, TYPES_ENROLLED (109) 3.
-        check("03 00 6b 00 01", true, "03 02 00 02");
+        // FC3: MAP_VERSION (107) reads 3, TYPES_ENROLLED (109) 3, BOOT_ID (123) 77.
+        check("03 00 6b 00 01", true, "03 02 00 03");
+        check("03 00 7b 00 01", true, "03 02 00 4d");
         check("03 00 6d 00 01", true, "03 02 00 03");
         // Quantity before address: 0 or 126 registers is 0x03, past the map 0x02.
         check("03 00 00 00 00", true, "83 03");
@@ -107,10 +112,11 @@ mod tests {
         check("06 00 03 00 01", false, "86 01");
         check("10 00 03 00 01 02 00 01", false, "90 01");
         // FC16: ONLINE and EXPECTED_TYPE together; a byte count that is not twice the quantity
-        // is 0x03; three registers from 3 reach read-only 5 (0x02).
+        // is 0x03; USER_DATA (5-6) takes any value; five registers from 3 reach reserved 7 (0x02).
         check("10 00 03 00 02 04 00 01 00 02", true, "10 00 03 00 02");
         check("10 00 03 00 02 03 00 01 00", true, "90 03");
-        check("10 00 03 00 03 06 00 01 00 02 00 00", true, "90 02");
+        check("10 00 05 00 02 04 ff ff ff ff", true, "10 00 05 00 02");
+        check("10 00 03 00 05 0a 00 01 00 02 00 00 00 00 00 00", true, "90 02");
         // Functions the appliance does not serve.
         check("04 00 00 00 01", true, "84 01");
         check("17 00 64 00 01 00 00 00 01 02 00 00", true, "97 01");

@@ -9,7 +9,7 @@ use tokio_util::sync::CancellationToken;
 
 use super::{Action, Link, output};
 use crate::config::RobotConfig;
-use crate::handshake::PartResult;
+use crate::handshake::Queued;
 use crate::registers::RobotView;
 
 async fn resolve(address: &str) -> std::io::Result<std::net::SocketAddr> {
@@ -70,23 +70,24 @@ async fn perform(
     Ok(())
 }
 
-/// Runs the link until `shutdown`; parts arrive on `parts` (acquisition id, result).
+/// Runs the link until `shutdown`; parts arrive on `parts` (the handshake's final results).
 pub async fn run(
     camera: String,
     cfg: RobotConfig,
-    mut parts: tokio::sync::mpsc::UnboundedReceiver<(u16, PartResult)>,
+    mut parts: tokio::sync::mpsc::UnboundedReceiver<Queued>,
     view: Arc<Mutex<RobotView>>,
     shutdown: CancellationToken,
 ) {
-    let mut link = Link::new(cfg.queue_depth, cfg.ack_timeout);
+    let mut link = Link::new(cfg.queue_depth, cfg.ack_timeout, cfg.word_order);
     let start = Instant::now();
     let mut backoff = Duration::from_millis(100);
     let mut last_complaint: Option<Instant> = None;
     let publish = |link: &Link| *view.lock().unwrap_or_else(|p| p.into_inner()) = link.view();
-    let drain = |link: &mut Link, parts: &mut tokio::sync::mpsc::UnboundedReceiver<(u16, PartResult)>| {
-        while let Ok((acq, p)) = parts.try_recv() {
+    let drain = |link: &mut Link, parts: &mut tokio::sync::mpsc::UnboundedReceiver<Queued>| {
+        while let Ok(p) = parts.try_recv() {
+            let (acq, index) = (p.acq_id, p.index);
             if !link.enqueue(p) {
-                tracing::warn!(camera = %camera, acq, "robot queue full ({} parts): part dropped", cfg.queue_depth);
+                tracing::warn!(camera = %camera, acq, part = index, "robot queue full ({} parts): part dropped", cfg.queue_depth);
             }
         }
     };

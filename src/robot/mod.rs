@@ -10,7 +10,7 @@ pub mod link;
 use std::collections::VecDeque;
 use std::time::Duration;
 
-use crate::handshake::{PartResult, angle_word};
+use crate::handshake::{PartResult, Queued, WordOrder, angle_word};
 use crate::registers::{RobotView, i16_word, robot_bits, u16_word};
 
 /// Robot input words (offsets from `input_words_at`), written by the appliance.
@@ -23,7 +23,8 @@ pub mod input {
     pub const Y: u16 = 5;
     pub const CONFIDENCE: u16 = 6;
     pub const HEARTBEAT: u16 = 7;
-    pub const COUNT: u16 = 8;
+    pub const USER_DATA: u16 = 8;
+    pub const COUNT: u16 = 10;
 }
 
 /// Robot output words (offsets from `output_words_at`), read by the appliance.
@@ -52,12 +53,18 @@ pub fn markdown() -> String {
         (input::Y, "Y, robot frame", "int16", "0.1 mm"),
         (input::CONFIDENCE, "CONFIDENCE (0 for a rejected part)", "uint16", "0.001"),
         (input::HEARTBEAT, "HEARTBEAT: +1 per second while connected", "uint16", "count"),
+        (
+            input::USER_DATA,
+            "USER_DATA (words 8-9): the PLC's USER_DATA latched with the part's frame (e.g. the conveyor encoder count, for line tracking); high word first unless the camera's `float_word_order = \"low-first\"`",
+            "uint32",
+            "any",
+        ),
     ] {
         s.push_str(&format!("| {o} | {name} | {ty} | {unit} |\n"));
     }
     s.push_str("\n| Offset | Output word (read by the appliance) | Meaning |\n|---:|---|---|\n");
     s.push_str("| 0 | STATUS | b0 ready for a part, b1 fault |\n| 1 | ACK_SEQ | the DATA_SEQ the robot program has taken |\n");
-    s.push_str("\nHandover: words 1..7 are written in one FC16 request, then DATA_SEQ alone in a second request, so the robot never acts on half-written data. The next part is written only after ACK_SEQ equals the last DATA_SEQ and STATUS b0 is set. After any (re)connection the appliance reads ACK_SEQ before writing anything: a part acknowledged meanwhile counts as delivered, one that was not is written again with the same DATA_SEQ, so nothing is lost or handed over twice. On a fresh start DATA_SEQ continues from the robot's ACK_SEQ. The robot link's queue is separate from the PLC's (RESULT_ACK does not consume robot parts, nor the robot PLC results); its state is in registers 110..118 above.\n");
+    s.push_str("\nHandover: words 1..9 are written in one FC16 request, then DATA_SEQ alone in a second request, so the robot never acts on half-written data. The next part is written only after ACK_SEQ equals the last DATA_SEQ and STATUS b0 is set. After any (re)connection the appliance reads ACK_SEQ before writing anything: a part acknowledged meanwhile counts as delivered, one that was not is written again with the same DATA_SEQ, so nothing is lost or handed over twice. On a fresh start DATA_SEQ continues from the robot's ACK_SEQ. The robot link's queue is separate from the PLC's (RESULT_ACK does not consume robot parts, nor the robot PLC results); its state is in registers 110..118 above.\n");
     s
 }
 
@@ -69,12 +76,21 @@ pub fn part_words(p: &PartResult) -> [u16; 6] {
     [type_id, p.face, angle_word(p.angle_deg), i16_word(p.x_mm * 10.0), i16_word(p.y_mm * 10.0), conf]
 }
 
+/// Words 8-9: USER_DATA in `order`.
+pub fn user_data_words(v: u32, order: WordOrder) -> [u16; 2] {
+    let (hi, lo) = ((v >> 16) as u16, v as u16);
+    match order {
+        WordOrder::HighFirst => [hi, lo],
+        WordOrder::LowFirst => [lo, hi],
+    }
+}
+
 /// What the driver must do next.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Action {
-    /// Write words 1..=7 (the part's six and the heartbeat, one FC16), then DATA_SEQ alone (a
-    /// second request), so the robot never acts on half-written data.
-    Send { seq: u16, words: [u16; 7] },
+    /// Write words 1..=9 (the part's six, the heartbeat and USER_DATA, one FC16), then
+    /// DATA_SEQ alone (a second request), so the robot never acts on half-written data.
+    Send { seq: u16, words: [u16; 9] },
     /// Write HEARTBEAT alone.
     Heartbeat { value: u16 },
     /// The robot has not acknowledged DATA_SEQ `seq` within the ack timeout (`waited` so far):
@@ -95,8 +111,10 @@ const HEARTBEAT_PERIOD: Duration = Duration::from_secs(1);
 /// time ([`Link::poll_timeout`]) and acts on it ([`Link::handle_timeout`]).
 #[derive(Debug, Clone)]
 pub struct Link {
-    queue: VecDeque<PartResult>,
+    /// Final results as the PLC got them (the part and its frame's USER_DATA).
+    queue: VecDeque<Queued>,
     depth: usize,
+    word_order: WordOrder,
     ack_timeout: Duration,
     connected: bool,
     /// Outputs read since the last (re)connection: nothing is written before.
@@ -105,7 +123,7 @@ pub struct Link {
     last_seq: u16,
     /// The part written and not yet acknowledged, when it was written, and whether it must be
     /// written again (the connection dropped before we knew it arrived).
-    in_flight: Option<(u16, PartResult, Duration, bool)>,
+    in_flight: Option<(u16, Queued, Duration, bool)>,
     last_ack: Option<u16>,
     robot_ready: bool,
     robot_fault: bool,
@@ -118,10 +136,11 @@ pub struct Link {
 }
 
 impl Link {
-    pub fn new(depth: usize, ack_timeout: Duration) -> Self {
+    pub fn new(depth: usize, ack_timeout: Duration, word_order: WordOrder) -> Self {
         Self {
             queue: VecDeque::new(),
             depth,
+            word_order,
             ack_timeout,
             connected: false,
             synced: false,
@@ -139,7 +158,7 @@ impl Link {
     }
 
     /// Queues a part for the robot; false (and counted) when the queue is full.
-    pub fn enqueue(&mut self, p: PartResult) -> bool {
+    pub fn enqueue(&mut self, p: Queued) -> bool {
         if self.queue.len() + self.in_flight.is_some() as usize >= self.depth {
             self.view.dropped = self.view.dropped.wrapping_add(1);
             return false;
@@ -223,9 +242,10 @@ impl Link {
         Some(Action::Send { seq, words })
     }
 
-    fn words(&self, p: &PartResult) -> [u16; 7] {
-        let w = part_words(p);
-        [w[0], w[1], w[2], w[3], w[4], w[5], self.heartbeat]
+    fn words(&self, q: &Queued) -> [u16; 9] {
+        let w = part_words(&q.part);
+        let [u0, u1] = user_data_words(q.user_data, self.word_order);
+        [w[0], w[1], w[2], w[3], w[4], w[5], self.heartbeat, u0, u1]
     }
 
     /// The next moment the link needs [`Link::handle_timeout`]: the in-flight part's ack

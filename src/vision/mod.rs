@@ -284,7 +284,21 @@ pub struct PartEstimate {
 impl PartEstimate {
     /// The decision and its numbers as text, for logs and the operator's "why".
     pub fn detail(&self) -> String {
-        self.decision.to_string()
+        if self.reason == self.decision.verdict.reason() {
+            self.decision.to_string()
+        } else {
+            format!("{} (after the estimate; the estimate: {})", self.reason, self.decision)
+        }
+    }
+
+    /// Takes a verdict made after the estimate (the PLC handshake's expected-type rule), so that
+    /// the part is shown and counted as the PLC got it; the estimate's own decision stays as the
+    /// evidence. Only ever a reject: nothing after the estimate may accept a part.
+    pub fn overrule(&mut self, accepted: bool, reason: Reason) {
+        if self.accepted && !accepted {
+            self.accepted = false;
+            self.reason = reason;
+        }
     }
 
     /// Records the verdict: REASON and acceptance follow from it, in this one place.

@@ -48,7 +48,7 @@ pub async fn wait_status(ctx: &mut client::Context, pred: impl Fn(u16) -> bool, 
 }
 
 /// One PLC cycle: waits for READY, triggers, waits for the acknowledgement and BUSY = 0, releases
-/// TRIGGER, then consumes every queued result. Returns each result's block of registers 100..219
+/// TRIGGER, then consumes every queued result. Returns each result's block of registers 100..220
 /// (index 0 is STATUS, index 100 RESULT_SEQ), in the order consumed.
 pub async fn cycle(ctx: &mut client::Context) -> Vec<Vec<u16>> {
     use lfi_bridge::registers::{addr, status};
@@ -58,7 +58,7 @@ pub async fn cycle(ctx: &mut client::Context) -> Vec<Vec<u16>> {
     write(ctx, addr::TRIGGER, 0).await;
     let mut results = Vec::new();
     loop {
-        let block = read(ctx, 100, 120).await;
+        let block = read(ctx, 100, 121).await;
         if block[0] & status::RESULT_VALID == 0 {
             return results;
         }

@@ -24,6 +24,8 @@ pub struct Picked {
     pub x: i32,
     pub y: i32,
     pub confidence: u16,
+    /// USER_DATA from words 8-9 (high word first).
+    pub user_data: u32,
 }
 
 #[derive(Debug)]
@@ -224,11 +226,20 @@ pub async fn tp_program(fanuc: Arc<Mutex<State>>, prog: Program, stop: Cancellat
         let (seq, w, ready) = {
             let mut s = fanuc.lock().unwrap();
             s.outputs[prog.output_at + 1] = last;
-            let w = s.inputs[prog.input_at..prog.input_at + 8].to_vec();
+            let w = s.inputs[prog.input_at..prog.input_at + 10].to_vec();
             (w[0], w, s.outputs[prog.output_at] & 1 != 0)
         };
         if ready && seq != 0 && seq != last {
-            picked.push(Picked { seq, type_id: w[1], face: w[2], angle: signed(w[3]), x: signed(w[4]), y: signed(w[5]), confidence: w[6] });
+            picked.push(Picked {
+                seq,
+                type_id: w[1],
+                face: w[2],
+                angle: signed(w[3]),
+                x: signed(w[4]),
+                y: signed(w[5]),
+                confidence: w[6],
+                user_data: ((w[8] as u32) << 16) | w[9] as u32,
+            });
             tokio::time::sleep(prog.pick).await;
             last = seq;
             fanuc.lock().unwrap().outputs[prog.output_at + 1] = seq;

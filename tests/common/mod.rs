@@ -4,6 +4,7 @@
 
 pub mod appliance;
 pub mod fanuc;
+pub mod http;
 
 use lfi_bridge::eval::Observation;
 use lfi_bridge::sim::{SimConfig, Simulator};

@@ -1,0 +1,179 @@
+//! One truth per part: for the same frames, the PLC's result registers, the robot's input words,
+//! the operator view's parts, the counters in `/metrics` and the log lines all tell the same
+//! story (after EXPECTED_TYPE, in picking order, with ACQ_ID and PART_INDEX).
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use common::appliance::{config, cycle, plc, start, write};
+use common::fanuc::{Fanuc, Program, tp_program};
+use common::http::http;
+use lfi_bridge::registers::addr;
+use lfi_bridge::vision::Reason;
+use tokio_util::sync::CancellationToken;
+
+const IN: u16 = 10;
+const OUT: u16 = 30;
+const EXPECTED_TYPE: u16 = 2;
+
+/// A part result as each consumer reports it: (ACQ_ID, PART_INDEX, accepted, REASON, X, Y in
+/// 0.1 mm).
+type Row = (u16, u16, bool, u16, i32, i32);
+
+/// The log lines, captured from the appliance's tracing events.
+#[derive(Clone, Default)]
+struct Capture(Arc<Mutex<Vec<u8>>>);
+
+impl std::io::Write for Capture {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap().extend_from_slice(buf);
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+fn field<'a>(line: &'a str, key: &str) -> Option<&'a str> {
+    let at = line.find(&format!(" {key}="))? + key.len() + 2;
+    line[at..].split_whitespace().next()
+}
+
+/// `(x, y)` of "... at (x, y) mm" in a log line, in 0.1 mm.
+fn millimetres(line: &str) -> (i32, i32) {
+    let at = line.find(" at (").expect("a position") + 5;
+    let inner = &line[at..line[at..].find(") mm").expect("in mm") + at];
+    let (x, y) = inner.split_once(", ").expect("x, y");
+    let tenth = |v: &str| (v.parse::<f64>().expect("a number") * 10.0).round() as i32;
+    (tenth(x), tenth(y))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_plc_the_robot_the_page_the_counters_and_the_log_agree_on_every_part() {
+    let log = Capture::default();
+    let sink = log.clone();
+    tracing_subscriber::fmt().with_ansi(false).with_max_level(tracing::Level::INFO).with_writer(move || sink.clone()).init();
+
+    let fanuc = Fanuc::start(Duration::from_secs(30)).await;
+    let stop_robot = CancellationToken::new();
+    let robot = tokio::spawn(tp_program(
+        fanuc.state.clone(),
+        Program { input_at: IN as usize, output_at: OUT as usize, pick: Duration::from_millis(1) },
+        stop_robot.clone(),
+    ));
+    let robot_words = format!(
+        "[camera.robot]\naddress = \"{}\"\ninput_words_at = {IN}\noutput_words_at = {OUT}\npoll_ms = 5\nack_timeout_s = 5",
+        fanuc.addr
+    );
+    let running = start(&config("", &robot_words)).await;
+    let web = running.http_addr.expect("http enabled");
+    let mut ctx = plc(running.modbus_addr, 1).await;
+    write(&mut ctx, addr::EXPECTED_TYPE, EXPECTED_TYPE).await;
+
+    let mut plc_rows: Vec<Row> = Vec::new();
+    let mut plc_types: BTreeMap<(u16, u16), u16> = BTreeMap::new();
+    let mut page_rows: Vec<Row> = Vec::new();
+    let mut page_types: BTreeMap<(u16, u16), (u16, Option<String>)> = BTreeMap::new();
+    for _ in 0..18 {
+        let blocks = cycle(&mut ctx).await;
+        let acq = blocks.first().map(|b| b[101]).expect("every acquisition gives a result");
+        for b in &blocks {
+            assert_eq!(b[101], acq, "one acquisition per cycle");
+            let row = (b[101], b[110], b[102] == 1, b[103], b[107] as i16 as i32, b[108] as i16 as i32);
+            plc_rows.push(row);
+            plc_types.insert((row.0, row.1), b[104]);
+        }
+        // The page follows the PLC within moments: wait until it shows this acquisition.
+        let end = tokio::time::Instant::now() + Duration::from_secs(5);
+        let parts = loop {
+            let (_, _, body) = tokio::task::spawn_blocking(move || http(web, "GET", "/api/state", &[], "")).await.unwrap();
+            let v: serde_json::Value = serde_json::from_slice(&body).unwrap();
+            let parts = v["cameras"][0]["parts"].as_array().cloned().unwrap_or_default();
+            if parts.first().is_some_and(|p| p["acq_id"] == acq) {
+                break parts;
+            }
+            assert!(tokio::time::Instant::now() < end, "the page never showed acquisition {acq}");
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        };
+        for p in parts {
+            let reason = Reason::ALL.iter().find(|r| r.as_str() == p["reason"]).expect("a known reason").code();
+            let tenth = |k: &str| (p[k].as_f64().unwrap() * 10.0).round() as i32;
+            let key = (p["acq_id"].as_u64().unwrap() as u16, p["index"].as_u64().unwrap() as u16);
+            let detail = p["detail"].as_str().unwrap();
+            if p["reason"] == Reason::WrongType.as_str() {
+                assert!(detail.starts_with("wrong type (after the estimate"), "part {key:?}: the why names the final reason: {detail}");
+            }
+            page_rows.push((key.0, key.1, p["accepted"] == true, reason, tenth("x_mm"), tenth("y_mm")));
+            page_types.insert(key, (p["type_id"].as_u64().unwrap() as u16, p["type_name"].as_str().map(str::to_string)));
+        }
+    }
+
+    let accepted: Vec<&Row> = plc_rows.iter().filter(|r| r.2).collect();
+    let wrong_type = plc_rows.iter().filter(|r| r.3 == Reason::WrongType.code()).count();
+    assert!(accepted.len() >= 3 && wrong_type >= 3, "the frames must test the rule: {} accepted, {wrong_type} wrong type", accepted.len());
+    assert!(accepted.iter().all(|r| plc_types[&(r.0, r.1)] == EXPECTED_TYPE), "only the expected type is accepted");
+    assert_eq!(page_rows, plc_rows, "the page shows what the PLC got");
+    for (key, plc_type) in &plc_types {
+        assert_eq!(page_types[key].0, *plc_type, "part {key:?}: TYPE_ID on the page");
+    }
+
+    // The robot took exactly the parts the PLC was told to pick, in the same order.
+    let end = tokio::time::Instant::now() + Duration::from_secs(30);
+    while (fanuc.output(OUT as usize + 1) as usize) < accepted.len() {
+        assert!(tokio::time::Instant::now() < end, "the robot never got every accepted part");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+
+    // Counters: every final result counted once, by its final reason.
+    let (_, _, body) = tokio::task::spawn_blocking(move || http(web, "GET", "/metrics", &[], "")).await.unwrap();
+    let metrics = String::from_utf8(body).unwrap();
+    let metric = |name: &str| -> u64 {
+        let line = metrics.lines().find(|l| l.starts_with(name)).unwrap_or_else(|| panic!("{name} missing"));
+        line.rsplit(' ').next().unwrap().parse().unwrap()
+    };
+    assert_eq!(metric("lfi_parts_accepted_total{") as usize, accepted.len());
+    for r in Reason::ALL.iter().skip(1) {
+        let plc = plc_rows.iter().filter(|row| !row.2 && row.3 == r.code()).count();
+        assert_eq!(
+            metric(&format!("lfi_parts_rejected_total{{camera=\"camera1\",unit_id=\"1\",reason=\"{}\"}}", r.as_str())) as usize,
+            plc,
+            "{r}"
+        );
+    }
+
+    running.stop().await;
+    stop_robot.cancel();
+    let picked = robot.await.unwrap();
+    let robot_rows: Vec<(u16, i32, i32)> = picked.iter().map(|p| (p.type_id, p.x, p.y)).collect();
+    let plc_accepted: Vec<(u16, i32, i32)> = accepted.iter().map(|r| (plc_types[&(r.0, r.1)], r.4, r.5)).collect();
+    assert_eq!(robot_rows, plc_accepted, "the robot picks what the PLC accepts");
+    fanuc.stop();
+
+    // The log: one line per part result, with the PLC's decision, reason, type and position.
+    let text = String::from_utf8(log.0.lock().unwrap().clone()).unwrap();
+    let mut logged: Vec<Row> = Vec::new();
+    for line in text.lines().filter(|l| l.contains(" part=") && (l.contains(" accept ") || l.contains(" reject ("))) {
+        let acq: u16 = field(line, "acq_id").expect("acq_id").parse().unwrap();
+        let index: u16 = field(line, "part").expect("part").parse().unwrap();
+        let accepted = line.contains(" accept ");
+        let reason = if accepted {
+            Reason::Ok
+        } else {
+            let r = &line[line.find(" reject (").unwrap() + 9..];
+            *Reason::ALL.iter().find(|x| r.starts_with(&format!("{})", x.as_str()))).expect("a known reason")
+        };
+        let name = page_types[&(acq, index)].1.clone().unwrap_or_else(|| "?".into());
+        assert!(line.contains(&format!(" {name} ")), "part {index} of acquisition {acq} logged under another name: {line}");
+        let (x, y) = millimetres(line);
+        logged.push((acq, index, accepted, reason.code(), x, y));
+    }
+    let plc_parts: Vec<Row> = plc_rows.iter().filter(|r| r.1 > 0).copied().collect();
+    assert_eq!(logged.len(), plc_parts.len(), "one log line per part");
+    for (l, p) in logged.iter().zip(&plc_parts) {
+        assert_eq!((l.0, l.1, l.2, l.3), (p.0, p.1, p.2, p.3), "log and PLC");
+        assert!((l.4 - p.4).abs() <= 1 && (l.5 - p.5).abs() <= 1, "log position {l:?} against the PLC's {p:?}");
+    }
+}
