@@ -3,6 +3,7 @@
 //! ```toml
 //! format = "lfi-bridge knowledge base"
 //! version = 1
+//! template_count = 6            # how many [[template]] tables follow (catches a cut-off file)
 //!
 //! [[template]]
 //! type = "bracket"
@@ -28,6 +29,8 @@ use crate::vision::{Face, KeepOut, Pt, Segment, Template};
 
 pub const FORMAT: &str = "lfi-bridge knowledge base";
 pub const VERSION: u32 = 1;
+/// Largest template image side accepted from a file (a part filling a 16k-pixel sensor).
+pub const MAX_SIDE: usize = 16384;
 
 #[derive(Debug, thiserror::Error)]
 pub enum KbError {
@@ -54,6 +57,9 @@ pub enum KbError {
 struct KbFile {
     format: String,
     version: u32,
+    /// Number of templates written; absent in files from before it existed.
+    #[serde(default, rename = "template_count", skip_serializing_if = "Option::is_none")]
+    count: Option<usize>,
     #[serde(default, rename = "template")]
     templates: Vec<Record>,
 }
@@ -136,6 +142,7 @@ impl KnowledgeBase {
         let file = KbFile {
             format: FORMAT.into(),
             version: VERSION,
+            count: Some(self.entries.len()),
             templates: self
                 .entries
                 .iter()
@@ -182,6 +189,22 @@ impl KnowledgeBase {
             }
         }
         let file: KbFile = toml::from_str(text).map_err(|e| KbError::Parse { path: path.into(), message: e.to_string() })?;
+        match file.count {
+            Some(n) if n != file.templates.len() => {
+                return Err(KbError::Parse {
+                    path: path.into(),
+                    message: format!(
+                        "`template_count = {n}` but {} [[template]] tables follow: the file is cut off or was edited by hand (fix the count)",
+                        file.templates.len()
+                    ),
+                });
+            }
+            Some(_) => {}
+            None => tracing::warn!(
+                "knowledge base {} has no `template_count` (written before it existed): a cut-off file cannot be told; saving it again adds the count",
+                path.display()
+            ),
+        }
         let mut kb = KnowledgeBase::default();
         for (i, r) in file.templates.into_iter().enumerate() {
             let index = i + 1;
@@ -202,10 +225,25 @@ impl KnowledgeBase {
             if !finite {
                 return Err(bad("non-finite number".into()));
             }
-            if r.area_px.is_nan() || r.area_px <= 0.0 {
-                return Err(bad(format!("area_px = {} must be positive", r.area_px)));
+            let [w, h] = r.image_size;
+            if !(16..=MAX_SIDE).contains(&w) || !(16..=MAX_SIDE).contains(&h) {
+                return Err(bad(format!("image_size = [{w}, {h}]: each side must be 16..={MAX_SIDE} pixels")));
             }
-            let span = r.image_size[0].max(r.image_size[1]) as f64;
+            let span = w.max(h) as f64;
+            // Every coordinate is in template pixels: on the template image, give or take one
+            // image size (an origin may be set beside the part). Anything farther is a damaged
+            // or hand-edited number that would blow up the matcher's tables.
+            let near = |v: f64| (-span..=2.0 * span).contains(&v);
+            let coords = r.outline.iter().flatten().chain(r.segments.iter().flat_map(|s| &s[..4])).chain(&r.origin).chain(&r.centroid);
+            if let Some(v) = coords.copied().find(|v| !near(*v)) {
+                return Err(bad(format!("coordinate {v} is outside the template's image ({w} x {h}) by more than its size")));
+            }
+            if let Some(s) = r.segments.iter().find(|s| !(0.0..=span).contains(&s[4])) {
+                return Err(bad(format!("segment width {} must be 0..={span}", s[4])));
+            }
+            if r.area_px.is_nan() || r.area_px <= 0.0 || r.area_px > (w * h) as f64 {
+                return Err(bad(format!("area_px = {} must be positive and at most the image's {} pixels", r.area_px, w * h)));
+            }
             for (k, c) in r.keep_out.iter().enumerate() {
                 let inside = c[..2].iter().all(|v| v.is_finite() && v.abs() <= 10.0 * span);
                 if !(inside && c[2] > 0.0 && c[2] <= 10.0 * span) {

@@ -112,8 +112,21 @@ fn missing_or_corrupt_knowledge_bases_are_named_errors() {
     assert_eq!(out.status.code(), Some(2));
     assert!(text(&out.stderr).contains("nope.toml"), "{}", text(&out.stderr));
     let text_kb = std::fs::read_to_string(&kb).unwrap();
+    // Every outline coordinate of the second template scaled: far outside its image.
+    let scaled = |by: f64| {
+        let mut v: toml::Table = text_kb.parse().unwrap();
+        let outline = v["template"].as_array_mut().unwrap()[1].as_table_mut().unwrap()["outline"].as_array_mut().unwrap();
+        for p in outline.iter_mut().flat_map(|p| p.as_array_mut().unwrap().iter_mut()) {
+            *p = toml::Value::Float(p.as_float().unwrap() * by);
+        }
+        toml::to_string(&v).unwrap()
+    };
+    let last_record = text_kb.rfind("[[template]]").unwrap();
     for (name, body) in [
         ("half.toml", text_kb[..text_kb.len() / 2].to_string()),
+        ("cut_at_a_record.toml", text_kb[..last_record].to_string()),
+        ("outline_1e300.toml", scaled(1e300)),
+        ("outline_1000.toml", scaled(1000.0)),
         ("other.toml", "format = \"spreadsheet\"\nversion = 1\n".to_string()),
         ("future.toml", text_kb.replace("version = 1", "version = 7")),
         ("empty.toml", String::new()),
@@ -121,8 +134,11 @@ fn missing_or_corrupt_knowledge_bases_are_named_errors() {
         let p = dir.path().join(name);
         std::fs::write(&p, body).unwrap();
         let out = run(&["estimate", "--kb", p.to_str().unwrap(), good]);
-        assert_eq!(out.status.code(), Some(2), "{name}");
+        assert_eq!(out.status.code(), Some(2), "{name}: {}", text(&out.stderr));
         assert!(text(&out.stderr).contains(name), "{name}: {}", text(&out.stderr));
+        if name.starts_with("outline") {
+            assert!(text(&out.stderr).contains("template 2 ("), "{name} names the template: {}", text(&out.stderr));
+        }
     }
 }
 

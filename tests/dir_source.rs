@@ -107,3 +107,27 @@ async fn a_trigger_with_no_file_is_a_camera_error() {
     wait_status(&mut ctx, |s| s & status::READY != 0, Duration::from_secs(5)).await;
     running.stop().await;
 }
+
+/// A JPEG the camera stopped writing halfway (its size then stays put, so it looks settled) is a
+/// frame error moved to `failed/`: a lost frame must never read as an empty belt.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_half_written_jpeg_is_a_frame_error_not_an_empty_belt() {
+    let root = tempfile::tempdir().unwrap();
+    let inbox = root.path().join("inbox");
+    std::fs::create_dir(&inbox).unwrap();
+    setup(root.path());
+    let sim = Simulator::new(SimConfig { width: 640, height: 480, seed: 4, noise: None }).unwrap();
+    let mat = sim.scene(0).unwrap().image.to_mat().unwrap();
+    let jpeg = lfi_bridge::imageio::encode_mat(&mat, ".jpg").unwrap();
+    let running = start(&dir_config(&inbox, "modbus")).await;
+    let mut ctx = plc(running.modbus_addr, 1).await;
+    std::fs::write(inbox.join("cut.jpg"), &jpeg[..jpeg.len() * 2 / 3]).unwrap();
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    write(&mut ctx, addr::TRIGGER, 1).await;
+    let s = wait_status(&mut ctx, |s| s & status::RESULT_VALID != 0 && s & status::BUSY == 0, Duration::from_secs(5)).await;
+    assert!(s & status::ERROR != 0, "STATUS {s:#010b}");
+    assert_eq!(read(&mut ctx, addr::ERROR_CODE, 1).await[0], 2, "ERROR_CODE 2: frame");
+    assert_eq!(read(&mut ctx, addr::REASON, 1).await[0], 7, "a frame-error result, not \"no part\"");
+    assert!(inbox.join("failed/cut.jpg").exists(), "kept for a look in failed/");
+    running.stop().await;
+}
