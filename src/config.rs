@@ -39,11 +39,16 @@ pub mod raw {
         pub max_connections: i64,
         #[serde(default = "default_idle")]
         pub idle_timeout_s: f64,
+        #[serde(default = "default_frame_timeout")]
+        pub frame_timeout_s: f64,
         #[serde(default)]
         pub write_allow: Vec<String>,
     }
     fn default_bind() -> String {
         "127.0.0.1:1502".into()
+    }
+    fn default_frame_timeout() -> f64 {
+        3.0
     }
     fn default_max_connections() -> i64 {
         64
@@ -57,6 +62,7 @@ pub mod raw {
                 bind: default_bind(),
                 max_connections: default_max_connections(),
                 idle_timeout_s: default_idle(),
+                frame_timeout_s: default_frame_timeout(),
                 write_allow: Vec::new(),
             }
         }
@@ -310,6 +316,7 @@ pub struct ModbusConfig {
     pub bind: SocketAddr,
     pub max_connections: usize,
     pub idle_timeout: Duration,
+    pub frame_timeout: Duration,
     pub write_allow: Vec<IpAddr>,
 }
 
@@ -377,6 +384,7 @@ impl Config {
             bind,
             max_connections: c.int("modbus.max_connections", m.max_connections, 1, 1024)?,
             idle_timeout: Duration::from_secs_f64(c.real("modbus.idle_timeout_s", m.idle_timeout_s, 0.1, 86400.0)?),
+            frame_timeout: Duration::from_secs_f64(c.real("modbus.frame_timeout_s", m.frame_timeout_s, 0.05, 60.0)?),
             write_allow,
         };
         let queue_depth = c.int("result.queue_depth", raw.result.queue_depth, 1, 1000)?;

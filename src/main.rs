@@ -121,8 +121,11 @@ fn parse_point(s: &str) -> Result<Pt, String> {
 }
 
 fn init_logging(default_level: &str) {
+    use std::io::IsTerminal;
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
+        // Colour codes only for a terminal: a file or the journal gets plain text.
+        .with_ansi(std::io::stderr().is_terminal())
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_level.into()))
         .init();
 }

@@ -223,7 +223,7 @@ pub const MAP: &[Register] = &[
         ReadOnly,
         Bits,
         "bits",
-        "Robot link: b0 CONFIGURED, b1 CONNECTED, b2 WAITING_ACK, b3 ACK_TIMEOUT, b4 ROBOT_READY, b5 ROBOT_FAULT.",
+        "Robot link: b0 CONFIGURED, b1 CONNECTED, b2 WAITING_ACK, b3 ACK_TIMEOUT, b4 ROBOT_READY, b5 ROBOT_FAULT (b4 and b5 as last read from the robot, 0 while not connected).",
     ),
     reg(addr::ROBOT_QUEUE, "ROBOT_QUEUE", ReadOnly, U16, "count", "Parts waiting for the robot, including the one being handed over."),
     reg(addr::ROBOT_DELIVERED, "ROBOT_DELIVERED", ReadOnly, U16, "count", "Parts the robot acknowledged (wraps)."),
@@ -357,6 +357,7 @@ pub fn markdown() -> String {
     s.push_str("| 0x02 Illegal data address | any address outside 0..299; a write to a read-only or reserved register |\n");
     s.push_str("| 0x03 Illegal data value | a value other than 0 or 1 written to TRIGGER, CLEAR_ERROR or ONLINE |\n");
     s.push_str("| 0x0B Gateway target failed | a unit id that is no camera |\n");
+    s.push_str("\nFraming: a request whose MBAP length field claims more bytes than its function's own layout (FC3 and FC6: 5 PDU bytes; FC16: 6 plus its byte count) is cut where the function ends and answered 0x03, so the request behind it is not swallowed. Only one client should drive a camera's handshake (TRIGGER, RESULT_ACK, CLEAR_ERROR): two writers each consume results the other never sees, so set `write_allow` to the line PLC; a write from a second address is logged. A request must be complete within `frame_timeout_s` (3 s) of its first byte and a connection with no complete request for `idle_timeout_s` is closed; when all `max_connections` slots are taken, the connection silent longest (at least 1 s) is closed for the newcomer.\n");
     s.push_str("\n## After a restart\n\nBOOT_ID (123) is drawn anew at every start. A PLC keeps the last value it read; when it differs (or it was 0: the PLC itself restarted), the appliance restarted: results queued before are gone and will not come, RESULT_SEQ, ACQ_COUNT and HEARTBEAT count from the start again, EXPECTED_TYPE and USER_DATA read 0 and ONLINE reads its configured start value. Then: drop any result the PLC was waiting for (the part it belonged to is to be treated as not inspected: re-trigger or reject it), write EXPECTED_TYPE and ONLINE again, and continue the handshake from READY.\n");
     s.push_str("\n## Changes\n\n");
     s.push_str("MAP_VERSION 3 (from 2): READY is now 0 while ERROR is set (it was 1, and a trigger then was missed: a PLC that waited only for READY triggered into an error); USER_DATA (5-6), BOOT_ID (123) and RESULT_USER_DATA (219-220, the result block now ends at 220) are new; robot input words 8-9 carry USER_DATA. A MAP_VERSION 2 program keeps working: it now waits at READY instead of losing a trigger while ERROR is set, and should clear ERROR (CLEAR_ERROR) when it sees it.\n\n");

@@ -243,6 +243,7 @@ fn after_a_restart_a_part_acknowledged_meanwhile_counts_and_one_not_is_written_a
     // The robot took it, and the connection dropped before we read its ACK_SEQ.
     link.on_disconnected();
     assert!(link.view().bits & robot_status::CONNECTED == 0);
+    assert!(link.view().bits & robot_status::ROBOT_READY == 0, "ROBOT_READY is not known while disconnected");
     link.on_connected(ms(1000));
     let a = link.on_outputs(READY, s1, ms(1000));
     let Some(Action::Send { seq: s2, words }) = a else { panic!("{a:?}") };

@@ -186,7 +186,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
         };
         let thread =
             std::thread::Builder::new().name(format!("camera-{}", cam.unit_id)).spawn(move || worker.run()).expect("spawn camera thread");
-        stations.push(Station { unit_id: cam.unit_id, handshake: handshake.clone(), commands: tx });
+        stations.push(Station { unit_id: cam.unit_id, handshake: handshake.clone(), commands: tx, last_writer: Mutex::new((None, None)) });
         cameras.push(CameraHandle {
             unit_id: cam.unit_id,
             name: cam.name.clone(),
@@ -214,6 +214,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
     let settings = server::Settings {
         max_connections: cfg.modbus.max_connections,
         idle_timeout: cfg.modbus.idle_timeout,
+        frame_timeout: cfg.modbus.frame_timeout,
         write_allow: cfg.modbus.write_allow.clone(),
     };
     let mut tasks = vec![tokio::spawn(server::serve(listener, stations.clone(), settings, stats.clone(), shutdown.clone()))];

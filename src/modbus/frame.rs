@@ -21,6 +21,20 @@ pub struct Adu {
     pub transaction: u16,
     pub unit: u8,
     pub pdu: Vec<u8>,
+    /// The length field claimed more bytes than the function's own layout holds: the frame was
+    /// cut where the function says it ends (so the next request is not swallowed as its tail),
+    /// and is answered with exception 0x03.
+    pub overlong: bool,
+}
+
+/// Where a request PDU ends by its own layout, for the functions the appliance serves (FC3 and
+/// FC6 are five bytes; FC16 six plus its byte count), once enough of it is there to tell.
+fn own_length(pdu: &[u8]) -> Option<usize> {
+    match *pdu.first()? {
+        0x03 | 0x06 => Some(5),
+        0x10 => pdu.get(5).map(|count| 6 + *count as usize),
+        _ => None,
+    }
 }
 
 /// Why the byte stream cannot be framed (the connection must be closed: its boundaries are lost).
@@ -45,11 +59,21 @@ pub fn decode(buf: &mut Vec<u8>) -> Result<Option<Adu>, FrameError> {
     if !(2..=MAX_LENGTH as u16).contains(&len) {
         return Err(FrameError::Length(len));
     }
-    let total = 6 + len as usize;
+    let declared = len as usize - 1;
+    let (transaction, unit) = (u16::from_be_bytes([buf[0], buf[1]]), buf[6]);
+    if let Some(own) = own_length(&buf[HEADER..])
+        && own < declared
+        && buf.len() >= HEADER + own
+    {
+        let adu = Adu { transaction, unit, pdu: buf[HEADER..HEADER + own].to_vec(), overlong: true };
+        buf.drain(..HEADER + own);
+        return Ok(Some(adu));
+    }
+    let total = HEADER + declared;
     if buf.len() < total {
         return Ok(None);
     }
-    let adu = Adu { transaction: u16::from_be_bytes([buf[0], buf[1]]), unit: buf[6], pdu: buf[HEADER..total].to_vec() };
+    let adu = Adu { transaction, unit, pdu: buf[HEADER..total].to_vec(), overlong: false };
     buf.drain(..total);
     Ok(Some(adu))
 }
@@ -134,6 +158,23 @@ mod tests {
         assert!(buf.is_empty());
         assert_eq!(decode(&mut vec![0, 1, 0, 5, 0, 6, 1, 3, 0, 0, 0, 1]), Err(FrameError::Protocol(5)));
         assert_eq!(decode(&mut vec![0, 1, 0, 0, 0xff, 0xff, 1]), Err(FrameError::Length(0xffff)));
+    }
+
+    /// A length field longer than the request: the frame ends where its function says, and the
+    /// next request right behind it is framed on its own, not swallowed.
+    #[test]
+    fn an_overlong_length_field_does_not_swallow_the_next_request() {
+        let long = [0, 1, 0, 0, 0, 40, 1, 0x03, 0, 100, 0, 2];
+        let next = [0, 2, 0, 0, 0, 6, 1, 0x03, 0, 107, 0, 1];
+        let mut buf = [&long[..], &next[..]].concat();
+        let a = decode(&mut buf).unwrap().unwrap();
+        assert_eq!((a.transaction, a.overlong, a.pdu.len()), (1, true, 5));
+        let b = decode(&mut buf).unwrap().unwrap();
+        assert_eq!((b.transaction, b.overlong, b.pdu.as_slice()), (2, false, &[0x03, 0, 107, 0, 1][..]));
+        // FC16: its byte count says where it ends.
+        let mut buf = vec![0, 3, 0, 0, 0, 30, 1, 0x10, 0, 3, 0, 1, 2, 0, 1];
+        let c = decode(&mut buf).unwrap().unwrap();
+        assert_eq!((c.overlong, c.pdu.len(), buf.len()), (true, 8, 0));
     }
 
     #[test]

@@ -20,7 +20,11 @@ use crate::handshake::{Command, Handshake};
 #[derive(Debug, Clone)]
 pub struct Settings {
     pub max_connections: usize,
+    /// A connection with no complete request for this long is closed.
     pub idle_timeout: Duration,
+    /// A request must be complete this long after its first byte, else the connection closes
+    /// (a client trickling bytes cannot hold a slot).
+    pub frame_timeout: Duration,
     /// Clients allowed to write; empty: all.
     pub write_allow: Vec<IpAddr>,
 }
@@ -30,6 +34,9 @@ pub struct Station {
     pub unit_id: u8,
     pub handshake: Arc<Mutex<Handshake>>,
     pub commands: std::sync::mpsc::Sender<Command>,
+    /// The address that last wrote to this camera, and when a second writer was last logged
+    /// (two writers each consume results the other never sees; logged at most once a minute).
+    pub last_writer: Mutex<(Option<IpAddr>, Option<Instant>)>,
 }
 
 /// All cameras, addressed by Modbus unit id (0 and 255 reach the first).
@@ -68,18 +75,83 @@ pub struct Stats {
     pub exceptions: AtomicUsize,
 }
 
+/// A connection with no complete request for at least this long gives its slot to a new client
+/// when all slots are taken (a PLC polls far more often).
+pub const RECLAIM_IDLE: Duration = Duration::from_secs(1);
+
+/// The open connections, so that a new client can take the slot of the longest-silent one.
+#[derive(Default)]
+struct Slots {
+    open: Mutex<Vec<Slot>>,
+    next_id: AtomicUsize,
+}
+
+struct Slot {
+    id: usize,
+    peer: SocketAddr,
+    /// When it last completed a request (or connected), shared with its session.
+    last_request: Arc<Mutex<Instant>>,
+    close: CancellationToken,
+}
+
+impl Slots {
+    /// Registers a new connection, closing the longest-silent one if all `max` slots are taken
+    /// and it has been silent for [`RECLAIM_IDLE`]; None when every slot is in use.
+    fn take(&self, peer: SocketAddr, max: usize, shutdown: &CancellationToken) -> Option<(usize, Arc<Mutex<Instant>>, CancellationToken)> {
+        let mut open = self.open.lock().unwrap_or_else(|p| p.into_inner());
+        if open.len() >= max {
+            let now = Instant::now();
+            let idle = |s: &Slot| now.duration_since(*s.last_request.lock().unwrap_or_else(|p| p.into_inner()));
+            let (i, longest) = open.iter().enumerate().map(|(i, s)| (i, idle(s))).max_by_key(|(_, d)| *d)?;
+            if longest < RECLAIM_IDLE {
+                return None;
+            }
+            let old = open.swap_remove(i);
+            tracing::warn!(
+                %peer,
+                "all {max} Modbus slots taken: closing {} (no complete request for {:.1} s) to serve the new client",
+                old.peer,
+                longest.as_secs_f64()
+            );
+            old.close.cancel();
+        }
+        let id = self.next_id.fetch_add(1, Ordering::Relaxed);
+        let last_request = Arc::new(Mutex::new(Instant::now()));
+        let close = shutdown.child_token();
+        open.push(Slot { id, peer, last_request: last_request.clone(), close: close.clone() });
+        Some((id, last_request, close))
+    }
+
+    fn release(&self, id: usize) {
+        self.open.lock().unwrap_or_else(|p| p.into_inner()).retain(|s| s.id != id);
+    }
+}
+
 /// Handles one request ADU and returns the response bytes.
 pub fn respond(stations: &Stations, adu: &frame::Adu, peer: IpAddr, write_allow: &[IpAddr], stats: &Stats) -> Vec<u8> {
     let fc = adu.pdu.first().copied().unwrap_or(0);
     stats.requests.fetch_add(1, Ordering::Relaxed);
     let result = (|| {
         let station = stations.get(adu.unit).ok_or(ExceptionCode::GatewayTargetDevice)?;
+        if adu.overlong {
+            return Err(ExceptionCode::IllegalDataValue);
+        }
         let req = frame::parse_request(&adu.pdu)?;
         let may_write = write_allow.is_empty() || write_allow.contains(&peer);
         let (resp, cmds) = {
             let mut hs = station.handshake.lock().unwrap_or_else(|p| p.into_inner());
             service::handle(&mut hs, &req, may_write, stations.since_start())?
         };
+        if matches!(fc, 0x06 | 0x10) {
+            let mut last = station.last_writer.lock().unwrap_or_else(|p| p.into_inner());
+            if let Some(before) = last.0.filter(|w| *w != peer)
+                && last.1.is_none_or(|t| t.elapsed() >= Duration::from_secs(60))
+            {
+                tracing::warn!(%peer, unit = adu.unit, "a second client writes to this camera (before: {before}): two writers each consume results the other never sees; set write_allow (logged at most once a minute)");
+                last.1 = Some(Instant::now());
+            }
+            last.0 = Some(peer);
+        }
         for c in cmds {
             // A worker that is gone (shutting down) leaves the acquisition BUSY; nothing to do.
             let _ = station.commands.send(c);
@@ -101,6 +173,7 @@ pub fn respond(stations: &Stations, adu: &frame::Adu, peer: IpAddr, write_allow:
 /// logged and retried with back-off; they never end the server or other clients' sessions.
 pub async fn serve(listener: TcpListener, stations: Arc<Stations>, settings: Settings, stats: Arc<Stats>, shutdown: CancellationToken) {
     let mut backoff = Duration::from_millis(10);
+    let slots = Arc::new(Slots::default());
     loop {
         let accepted = tokio::select! {
             _ = shutdown.cancelled() => break,
@@ -121,17 +194,23 @@ pub async fn serve(listener: TcpListener, stations: Arc<Stations>, settings: Set
                 continue;
             }
         };
-        if stats.connected.load(Ordering::SeqCst) >= settings.max_connections {
+        let Some((id, last_request, close)) = slots.take(peer, settings.max_connections, &shutdown) else {
             stats.refused.fetch_add(1, Ordering::Relaxed);
-            tracing::warn!(%peer, "Modbus connection refused: {} clients connected (max_connections)", settings.max_connections);
+            tracing::warn!(
+                %peer,
+                "Modbus connection refused: all {} slots in use by clients active within {} s (max_connections)",
+                settings.max_connections,
+                RECLAIM_IDLE.as_secs()
+            );
             drop(stream);
             continue;
-        }
+        };
         stats.connected.fetch_add(1, Ordering::SeqCst);
         tracing::info!(%peer, "Modbus client connected ({} now)", stats.connected.load(Ordering::SeqCst));
-        let (stations, settings, stats, shutdown) = (stations.clone(), settings.clone(), stats.clone(), shutdown.clone());
+        let (stations, settings, stats, slots) = (stations.clone(), settings.clone(), stats.clone(), slots.clone());
         tokio::spawn(async move {
-            let why = session(stream, peer, &stations, &settings, &stats, shutdown).await;
+            let why = session(stream, peer, &stations, &settings, &stats, &last_request, close).await;
+            slots.release(id);
             stats.connected.fetch_sub(1, Ordering::SeqCst);
             tracing::info!(%peer, "Modbus client disconnected: {why}");
         });
@@ -146,15 +225,23 @@ async fn session(
     stations: &Stations,
     settings: &Settings,
     stats: &Stats,
-    shutdown: CancellationToken,
+    last_request: &Mutex<Instant>,
+    close: CancellationToken,
 ) -> String {
     let _ = stream.set_nodelay(true);
     let mut buf: Vec<u8> = Vec::with_capacity(512);
     let mut chunk = [0u8; 1024];
+    // Idle time counts from the last complete request, not the last byte; a request under way
+    // must be complete within `frame_timeout` of its first byte.
+    let mut idle_since = tokio::time::Instant::now();
+    let mut frame_since: Option<tokio::time::Instant> = None;
     loop {
         loop {
             match frame::decode(&mut buf) {
                 Ok(Some(adu)) => {
+                    idle_since = tokio::time::Instant::now();
+                    frame_since = None;
+                    *last_request.lock().unwrap_or_else(|p| p.into_inner()) = Instant::now();
                     let out = respond(stations, &adu, peer.ip(), &settings.write_allow, stats);
                     if let Err(e) = stream.write_all(&out).await {
                         return format!("write failed: {e}");
@@ -167,10 +254,21 @@ async fn session(
                 }
             }
         }
+        if buf.is_empty() {
+            frame_since = None;
+        } else if frame_since.is_none() {
+            frame_since = Some(tokio::time::Instant::now());
+        }
+        let idle_end = idle_since + settings.idle_timeout;
+        let deadline = frame_since.map_or(idle_end, |t| (t + settings.frame_timeout).min(idle_end));
         let n = tokio::select! {
-            _ = shutdown.cancelled() => return "server shutting down".into(),
-            r = tokio::time::timeout(settings.idle_timeout, stream.read(&mut chunk)) => match r {
-                Err(_) => return format!("idle for {} s", settings.idle_timeout.as_secs()),
+            _ = close.cancelled() => return "closed (server shutting down, or its slot given to a new client)".into(),
+            r = tokio::time::timeout_at(deadline, stream.read(&mut chunk)) => match r {
+                Err(_) if deadline < idle_end => {
+                    tracing::warn!(%peer, "closing Modbus connection: a request incomplete {} ms after its first byte ({} bytes)", settings.frame_timeout.as_millis(), buf.len());
+                    return format!("request incomplete after {} ms", settings.frame_timeout.as_millis());
+                }
+                Err(_) => return format!("no complete request for {} s", settings.idle_timeout.as_secs()),
                 Ok(Err(e)) => return format!("read failed: {e}"),
                 Ok(Ok(0)) => return "closed by client".into(),
                 Ok(Ok(n)) => n,

@@ -291,7 +291,9 @@ impl Link {
     /// The state for registers 110..118.
     pub fn view(&self) -> RobotView {
         let mut v = self.view;
-        v.bits = robot_bits(true, self.connected, self.in_flight.is_some(), self.timed_out, self.robot_ready, self.robot_fault);
+        // What the robot said holds only while connected: after a loss it is not known.
+        let (ready, fault) = (self.connected && self.robot_ready, self.connected && self.robot_fault);
+        v.bits = robot_bits(true, self.connected, self.in_flight.is_some(), self.timed_out, ready, fault);
         v.queue = self.pending().min(65535) as u16;
         v
     }
