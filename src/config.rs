@@ -112,13 +112,41 @@ pub mod raw {
         pub bind: String,
         #[serde(default)]
         pub token: Option<String>,
+        #[serde(default = "default_http_connections")]
+        pub max_connections: i64,
+        #[serde(default = "default_http_in_flight")]
+        pub max_in_flight: i64,
+        #[serde(default = "default_header_timeout")]
+        pub header_timeout_s: f64,
+        #[serde(default = "default_request_timeout")]
+        pub request_timeout_s: f64,
     }
     fn default_true() -> bool {
         true
     }
+    fn default_http_connections() -> i64 {
+        32
+    }
+    fn default_http_in_flight() -> i64 {
+        8
+    }
+    fn default_header_timeout() -> f64 {
+        5.0
+    }
+    fn default_request_timeout() -> f64 {
+        10.0
+    }
     impl Default for Http {
         fn default() -> Self {
-            Self { enabled: true, bind: default_http_bind(), token: None }
+            Self {
+                enabled: true,
+                bind: default_http_bind(),
+                token: None,
+                max_connections: default_http_connections(),
+                max_in_flight: default_http_in_flight(),
+                header_timeout_s: default_header_timeout(),
+                request_timeout_s: default_request_timeout(),
+            }
         }
     }
     fn default_http_bind() -> String {
@@ -324,6 +352,15 @@ pub struct ModbusConfig {
 pub struct HttpConfig {
     pub bind: SocketAddr,
     pub token: Option<String>,
+    /// Open connections served at once; further ones wait in the kernel's backlog (they use no
+    /// descriptor of the appliance's), so HTTP can never take the PLC's or the cameras'.
+    pub max_connections: usize,
+    /// Requests handled at once (others wait for a turn).
+    pub max_in_flight: usize,
+    /// A request's headers must arrive within this.
+    pub header_timeout: Duration,
+    /// A request must be answered within this (408 otherwise).
+    pub request_timeout: Duration,
 }
 
 /// The validated configuration.
@@ -402,7 +439,14 @@ impl Config {
                 {
                     return Err(c.err("http.token", "(hidden)", "is shorter than 8 characters"));
                 }
-                Some(HttpConfig { bind, token: h.token.clone() })
+                Some(HttpConfig {
+                    bind,
+                    token: h.token.clone(),
+                    max_connections: c.int("http.max_connections", h.max_connections, 1, 512)?,
+                    max_in_flight: c.int("http.max_in_flight", h.max_in_flight, 1, 256)?,
+                    header_timeout: Duration::from_secs_f64(c.real("http.header_timeout_s", h.header_timeout_s, 0.1, 300.0)?),
+                    request_timeout: Duration::from_secs_f64(c.real("http.request_timeout_s", h.request_timeout_s, 0.1, 300.0)?),
+                })
             }
         };
         if raw.camera.is_empty() {

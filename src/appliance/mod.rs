@@ -119,14 +119,9 @@ fn source_for(cam: &CameraConfig) -> Result<Box<dyn Source>, StartError> {
     })
 }
 
-/// A random, non-zero BOOT_ID for this start (the standard library's per-process random hash
-/// keys, mixed with the time and the process id: different at every start, no extra crate).
+/// A random, non-zero BOOT_ID for this start.
 fn draw_boot_id() -> u16 {
-    use std::hash::{BuildHasher, Hasher};
-    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
-    h.write_u128(std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0));
-    h.write_u32(std::process::id());
-    (h.finish() % 65535) as u16 + 1
+    rand::random_range(1..=u16::MAX)
 }
 
 /// Starts everything; returns once the Modbus server listens.

@@ -4,6 +4,13 @@
 //! Reading never changes anything. Enrolling a template from the current frame needs the token
 //! from `[http] token` (sent as `Authorization: Bearer <token>`); without a configured token the
 //! view is read-only. Every change is logged with the client's address.
+//!
+//! Isolation: the view runs on its own thread and runtime, serves at most `max_connections`
+//! connections (the rest wait in the kernel's backlog, holding none of the appliance's file
+//! descriptors), handles at most `max_in_flight` requests at once, closes a connection whose
+//! headers do not arrive within `header_timeout_s`, answers 408 past `request_timeout_s`, and
+//! encodes the live frame once per frame however many clients ask for it. Whatever the page's
+//! clients do, the PLC's Modbus service keeps its threads and descriptors.
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -28,6 +35,9 @@ use crate::vision::{Face, Reason};
 
 const PAGE: &str = include_str!("page.html");
 
+/// A camera's live picture as last encoded: the frame's `Live::seq` and the JPEG.
+pub type Picture = tokio::sync::Mutex<Option<(u64, axum::body::Bytes)>>;
+
 /// What the handlers share.
 #[derive(Clone)]
 pub struct AppState {
@@ -35,30 +45,118 @@ pub struct AppState {
     pub stats: Arc<Stats>,
     pub started: Instant,
     pub token: Option<String>,
+    /// Per camera, the live picture encoded for the latest frame (by `Live::seq`): encoded once
+    /// per frame, however many clients ask (the lock makes the others wait for that one).
+    pub pictures: Arc<Vec<Picture>>,
 }
 
-/// Starts the operator view beside a running appliance (which stops it with itself).
+/// Starts the operator view beside a running appliance (which stops it with itself), on its own
+/// thread and single-threaded runtime.
 pub async fn attach(running: &mut Running, cfg: &HttpConfig) -> Result<SocketAddr, StartError> {
-    let listener = TcpListener::bind(cfg.bind).await.map_err(|source| StartError::Bind { addr: cfg.bind, source })?;
-    let addr = listener.local_addr().map_err(|source| StartError::Bind { addr: cfg.bind, source })?;
-    let state =
-        AppState { cameras: running.cameras.clone(), stats: running.stats.clone(), started: running.started, token: cfg.token.clone() };
+    let bind_err = |source| StartError::Bind { addr: cfg.bind, source };
+    let listener = std::net::TcpListener::bind(cfg.bind).map_err(bind_err)?;
+    listener.set_nonblocking(true).map_err(bind_err)?;
+    let addr = listener.local_addr().map_err(bind_err)?;
+    let pictures = Arc::new(running.cameras.iter().map(|_| tokio::sync::Mutex::new(None)).collect());
+    let state = AppState {
+        cameras: running.cameras.clone(),
+        stats: running.stats.clone(),
+        started: running.started,
+        token: cfg.token.clone(),
+        pictures,
+    };
     tracing::info!(
         "operator view on http://{addr}/ ({})",
         if cfg.token.is_some() { "changes need the token" } else { "read-only: no token configured" }
     );
-    running.add_task(tokio::spawn(serve(listener, state, running.shutdown.clone())));
+    let (limits, shutdown) = (cfg.clone(), running.shutdown.clone());
+    let thread = std::thread::Builder::new()
+        .name("operator-view".into())
+        .spawn(move || {
+            lower_priority();
+            let rt = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+                Ok(rt) => rt,
+                Err(e) => return tracing::error!("operator view not started: no runtime: {e}"),
+            };
+            rt.block_on(async move {
+                match TcpListener::from_std(listener) {
+                    Ok(l) => serve(l, state, &limits, shutdown).await,
+                    Err(e) => tracing::error!("operator view not started: {e}"),
+                }
+            });
+        })
+        .map_err(bind_err)?;
+    running.add_task(tokio::task::spawn_blocking(move || {
+        let _ = thread.join();
+    }));
     running.http_addr = Some(addr);
     Ok(addr)
 }
 
-pub async fn serve(listener: TcpListener, state: AppState, shutdown: CancellationToken) {
-    let app = router(state);
-    let served = axum::serve(listener, app.into_make_service_with_connect_info::<SocketAddr>())
-        .with_graceful_shutdown(async move { shutdown.cancelled().await })
-        .await;
-    if let Err(e) = served {
-        tracing::warn!("operator view stopped: {e}");
+/// Nice value of the operator view's thread: under a flood of page requests the camera worker
+/// and the Modbus service (nice 0) get the CPU first (weights 1024 against 110 in Linux's
+/// scheduler), while an idle appliance still serves the page at once.
+pub const NICE: i32 = 10;
+
+fn lower_priority() {
+    // SAFETY: plain system calls on the calling thread's own id; no memory is shared.
+    let rc = unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, NICE) };
+    if rc != 0 {
+        tracing::warn!("operator view keeps its priority: setpriority failed: {}", std::io::Error::last_os_error());
+    }
+}
+
+/// The accept loop: one connection per permit, each served by hyper with the header timeout;
+/// the router carries the request timeout and the in-flight limit.
+pub async fn serve(listener: TcpListener, state: AppState, limits: &HttpConfig, shutdown: CancellationToken) {
+    use tower::Service;
+    let app = router(state)
+        .layer(tower::limit::GlobalConcurrencyLimitLayer::new(limits.max_in_flight))
+        .layer(tower_http::timeout::TimeoutLayer::with_status_code(StatusCode::REQUEST_TIMEOUT, limits.request_timeout));
+    let mut make = app.into_make_service_with_connect_info::<SocketAddr>();
+    let permits = Arc::new(tokio::sync::Semaphore::new(limits.max_connections));
+    let mut backoff = std::time::Duration::from_millis(10);
+    loop {
+        // Accept only with a permit: a flood waits in the kernel's backlog, not in our descriptors.
+        let permit = tokio::select! {
+            _ = shutdown.cancelled() => break,
+            p = permits.clone().acquire_owned() => match p { Ok(p) => p, Err(_) => break },
+        };
+        let (stream, peer) = tokio::select! {
+            _ = shutdown.cancelled() => break,
+            a = listener.accept() => match a {
+                Ok(a) => {
+                    backoff = std::time::Duration::from_millis(10);
+                    a
+                }
+                Err(e) => {
+                    tracing::warn!("operator view: accepting failed: {e}; retrying in {} ms", backoff.as_millis());
+                    tokio::time::sleep(backoff).await;
+                    backoff = (backoff * 2).min(std::time::Duration::from_secs(1));
+                    continue;
+                }
+            },
+        };
+        let Ok(svc) = make.call(peer).await;
+        let io = hyper_util::rt::TokioIo::new(stream);
+        let (shutdown, header_timeout) = (shutdown.clone(), limits.header_timeout);
+        tokio::spawn(async move {
+            let _permit = permit;
+            let conn = hyper::server::conn::http1::Builder::new()
+                .timer(hyper_util::rt::TokioTimer::new())
+                .header_read_timeout(header_timeout)
+                .serve_connection(io, hyper_util::service::TowerToHyperService::new(svc));
+            tokio::pin!(conn);
+            tokio::select! {
+                r = conn.as_mut() => if let Err(e) = r {
+                    tracing::debug!(%peer, "operator view connection ended: {e}");
+                },
+                _ = shutdown.cancelled() => {
+                    conn.as_mut().graceful_shutdown();
+                    let _ = tokio::time::timeout(std::time::Duration::from_secs(2), conn).await;
+                }
+            }
+        });
     }
 }
 
@@ -379,21 +477,32 @@ async fn api_state(State(state): State<AppState>) -> Response {
 
 async fn frame_jpg(State(state): State<AppState>, Path(unit): Path<u8>) -> Result<Response, Failure> {
     let cam = camera(&state, unit)?;
-    let (frame, estimate) = {
+    let slot = state.cameras.iter().position(|c| std::ptr::eq(c, cam)).and_then(|i| state.pictures.get(i));
+    let slot = slot.ok_or((StatusCode::INTERNAL_SERVER_ERROR, "no picture slot for this camera".to_string()))?;
+    let mut cached = slot.lock().await;
+    let (frame, estimate, seq) = {
         let live = cam.live.lock().unwrap_or_else(|p| p.into_inner());
-        (live.frame.clone(), live.estimate.clone())
+        (live.frame.clone(), live.estimate.clone(), live.seq)
     };
-    let (Some(frame), Some(estimate)) = (frame, estimate) else { return Err((StatusCode::NOT_FOUND, "no frame yet".into())) };
-    let estimator = cam.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
-    let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, Failure> {
-        let scale = (960.0 / frame.width as f64).min(1.0);
-        let view = frame.view().map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
-        let pic =
-            crate::overlay::draw(view, &estimate, &estimator, scale).map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
-        crate::imageio::encode_mat(&pic, ".jpg").map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e))
-    })
-    .await
-    .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
+    let bytes = match cached.as_ref() {
+        Some((s, b)) if *s == seq => b.clone(),
+        _ => {
+            let (Some(frame), Some(estimate)) = (frame, estimate) else { return Err((StatusCode::NOT_FOUND, "no frame yet".into())) };
+            let estimator = cam.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
+            let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, Failure> {
+                let scale = (960.0 / frame.width as f64).min(1.0);
+                let view = frame.view().map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+                let pic = crate::overlay::draw(view, &estimate, &estimator, scale)
+                    .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+                crate::imageio::encode_mat(&pic, ".jpg").map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e))
+            })
+            .await
+            .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
+            let bytes = axum::body::Bytes::from(bytes);
+            *cached = Some((seq, bytes.clone()));
+            bytes
+        }
+    };
     Ok(([(header::CONTENT_TYPE, "image/jpeg"), (header::CACHE_CONTROL, "no-store")], bytes).into_response())
 }
 
