@@ -6,13 +6,9 @@ mod common;
 use std::time::Duration;
 
 use common::appliance::{config, plc, read, start, wait_status, write};
-use common::fanuc::{Fanuc, Program, tp_program};
+use common::fanuc::Cell;
 use lfi_bridge::registers::{addr, status};
 use tokio_modbus::prelude::*;
-use tokio_util::sync::CancellationToken;
-
-const IN: u16 = 10;
-const OUT: u16 = 30;
 
 /// The encoder count of cycle `k`: above 16 bits, so both words matter.
 fn encoder(k: u32) -> u32 {
@@ -21,18 +17,8 @@ fn encoder(k: u32) -> u32 {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn user_data_written_before_each_trigger_comes_back_latched_in_every_result_and_robot_word() {
-    let fanuc = Fanuc::start(Duration::from_secs(30)).await;
-    let stop_robot = CancellationToken::new();
-    let robot = tokio::spawn(tp_program(
-        fanuc.state.clone(),
-        Program { input_at: IN as usize, output_at: OUT as usize, pick: Duration::from_millis(1) },
-        stop_robot.clone(),
-    ));
-    let robot_cfg = format!(
-        "[camera.robot]\naddress = \"{}\"\ninput_words_at = {IN}\noutput_words_at = {OUT}\npoll_ms = 5\nack_timeout_s = 5",
-        fanuc.addr
-    );
-    let running = start(&config("", &robot_cfg)).await;
+    let cell = Cell::start(Duration::from_millis(1)).await;
+    let running = start(&config("", &cell.robot_toml)).await;
     let mut ctx = plc(running.modbus_addr, 1).await;
     let mut accepted: Vec<u32> = Vec::new();
     let mut results = 0;
@@ -77,16 +63,10 @@ async fn user_data_written_before_each_trigger_comes_back_latched_in_every_resul
     }
 
     // The robot got each accepted part with the same value in words 8-9.
-    let end = tokio::time::Instant::now() + Duration::from_secs(30);
-    while (fanuc.output(OUT as usize + 1) as usize) < accepted.len() {
-        assert!(tokio::time::Instant::now() < end, "the robot never got every accepted part");
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
+    cell.until_acknowledged(accepted.len(), Duration::from_secs(30)).await;
     running.stop().await;
-    stop_robot.cancel();
-    let picked = robot.await.unwrap();
+    let picked = cell.picked().await;
     assert_eq!(picked.iter().map(|p| p.user_data).collect::<Vec<_>>(), accepted, "robot words 8-9");
-    fanuc.stop();
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -20,6 +20,11 @@ fn hs(depth: usize) -> Handshake {
     })
 }
 
+/// A handshake of depth 4 with floats and USER_DATA low word first.
+fn low_first() -> Handshake {
+    Handshake::new(Settings { word_order: WordOrder::LowFirst, queue_depth: 4, ..hs(4).settings().clone() })
+}
+
 fn part(type_id: u16, x: f64) -> PartResult {
     PartResult { accepted: true, reason: Reason::Ok, type_id, face: 1, angle_deg: 12.34, x_mm: x, y_mm: -5.0, confidence: 0.876 }
 }
@@ -227,14 +232,7 @@ fn a_fault_names_its_error_code_and_stops_acquiring_until_cleared() {
 
 #[test]
 fn heartbeat_floats_and_stale_reports() {
-    let mut h = Handshake::new(Settings {
-        queue_depth: 4,
-        online: true,
-        word_order: WordOrder::LowFirst,
-        types_enrolled: 3,
-        picking_order: PickingOrder::XAscending,
-        boot_id: 77,
-    });
+    let mut h = low_first();
     h.tick(Duration::from_millis(65_537_500));
     assert_eq!(h.word(addr::HEARTBEAT), 1, "65537 s wraps to 1");
     assert_eq!(h.word(addr::MAP_VERSION), lfi_bridge::registers::MAP_VERSION);
@@ -379,14 +377,7 @@ fn one_fc16_writing_user_data_and_trigger_latches_the_new_value() {
 
 #[test]
 fn user_data_follows_the_float_word_order() {
-    let mut h = Handshake::new(Settings {
-        queue_depth: 4,
-        online: true,
-        word_order: WordOrder::LowFirst,
-        types_enrolled: 3,
-        picking_order: PickingOrder::XAscending,
-        boot_id: 77,
-    });
+    let mut h = low_first();
     h.write_block(addr::USER_DATA, &[0x5678, 0x1234], ms(0));
     assert_eq!(h.user_data(), 0x1234_5678);
     let Some(Command::Acquire { acq_id }) = h.free_run(ms(1)) else { panic!("free-run latches when the frame is taken") };

@@ -9,14 +9,11 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use common::appliance::{config, cycle, plc, start, write};
-use common::fanuc::{Fanuc, Program, tp_program};
+use common::fanuc::Cell;
 use common::http::http;
 use lfi_bridge::registers::addr;
 use lfi_bridge::vision::Reason;
-use tokio_util::sync::CancellationToken;
 
-const IN: u16 = 10;
-const OUT: u16 = 30;
 const EXPECTED_TYPE: u16 = 2;
 
 /// A part result as each consumer reports it: (ACQ_ID, PART_INDEX, accepted, REASON, X, Y in
@@ -57,18 +54,8 @@ async fn the_plc_the_robot_the_page_the_counters_and_the_log_agree_on_every_part
     let sink = log.clone();
     tracing_subscriber::fmt().with_ansi(false).with_max_level(tracing::Level::INFO).with_writer(move || sink.clone()).init();
 
-    let fanuc = Fanuc::start(Duration::from_secs(30)).await;
-    let stop_robot = CancellationToken::new();
-    let robot = tokio::spawn(tp_program(
-        fanuc.state.clone(),
-        Program { input_at: IN as usize, output_at: OUT as usize, pick: Duration::from_millis(1) },
-        stop_robot.clone(),
-    ));
-    let robot_words = format!(
-        "[camera.robot]\naddress = \"{}\"\ninput_words_at = {IN}\noutput_words_at = {OUT}\npoll_ms = 5\nack_timeout_s = 5",
-        fanuc.addr
-    );
-    let running = start(&config("", &robot_words)).await;
+    let cell = Cell::start(Duration::from_millis(1)).await;
+    let running = start(&config("", &cell.robot_toml)).await;
     let web = running.http_addr.expect("http enabled");
     let mut ctx = plc(running.modbus_addr, 1).await;
     write(&mut ctx, addr::EXPECTED_TYPE, EXPECTED_TYPE).await;
@@ -121,11 +108,7 @@ async fn the_plc_the_robot_the_page_the_counters_and_the_log_agree_on_every_part
     }
 
     // The robot took exactly the parts the PLC was told to pick, in the same order.
-    let end = tokio::time::Instant::now() + Duration::from_secs(30);
-    while (fanuc.output(OUT as usize + 1) as usize) < accepted.len() {
-        assert!(tokio::time::Instant::now() < end, "the robot never got every accepted part");
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
+    cell.until_acknowledged(accepted.len(), Duration::from_secs(30)).await;
 
     // Counters: every final result counted once, by its final reason.
     let (_, _, body) = tokio::task::spawn_blocking(move || http(web, "GET", "/metrics", &[], "")).await.unwrap();
@@ -145,12 +128,10 @@ async fn the_plc_the_robot_the_page_the_counters_and_the_log_agree_on_every_part
     }
 
     running.stop().await;
-    stop_robot.cancel();
-    let picked = robot.await.unwrap();
+    let picked = cell.picked().await;
     let robot_rows: Vec<(u16, i32, i32)> = picked.iter().map(|p| (p.type_id, p.x, p.y)).collect();
     let plc_accepted: Vec<(u16, i32, i32)> = accepted.iter().map(|r| (plc_types[&(r.0, r.1)], r.4, r.5)).collect();
     assert_eq!(robot_rows, plc_accepted, "the robot picks what the PLC accepts");
-    fanuc.stop();
 
     // The log: one line per part result, with the PLC's decision, reason, type and position.
     let text = String::from_utf8(log.0.lock().unwrap().clone()).unwrap();

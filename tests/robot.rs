@@ -7,7 +7,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use common::appliance::{cycle, plc, read, start};
-use common::fanuc::{Fanuc, Picked, Program, tp_program};
+use common::fanuc::{Cell, Fanuc, Picked, Program, tp_program};
 use lfi_bridge::config::{RobotConfig, RobotSend};
 use lfi_bridge::handshake::{PartResult, Queued, WordOrder};
 use lfi_bridge::registers::RobotView;
@@ -307,21 +307,8 @@ async fn a_fifth_connection_and_the_idle_timeout_do_not_lose_parts() {
 /// slow robot; both see the same accepted parts, each at its own pace.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_plc_and_the_robot_consume_the_same_frames_at_different_speeds() {
-    let fanuc = Fanuc::start(Duration::from_secs(10)).await;
-    let stop_robot = CancellationToken::new();
-    let robot = tokio::spawn(tp_program(
-        fanuc.state.clone(),
-        Program { input_at: IN as usize, output_at: OUT as usize, pick: Duration::from_millis(40) },
-        stop_robot.clone(),
-    ));
-    let cfg = common::appliance::config(
-        "",
-        &format!(
-            "[camera.robot]\naddress = \"{}\"\ninput_words_at = {IN}\noutput_words_at = {OUT}\npoll_ms = 5\nack_timeout_s = 5",
-            fanuc.addr
-        ),
-    );
-    let running = start(&cfg).await;
+    let cell = Cell::start(Duration::from_millis(40)).await;
+    let running = start(&common::appliance::config("", &cell.robot_toml)).await;
     let mut ctx = plc(running.modbus_addr, 1).await;
     let mut accepted_by_plc: Vec<(u16, i16, i16)> = Vec::new();
     for _ in 0..27 {
@@ -344,9 +331,7 @@ async fn the_plc_and_the_robot_consume_the_same_frames_at_different_speeds() {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     running.stop().await;
-    stop_robot.cancel();
-    let picked = robot.await.unwrap();
+    let picked = cell.picked().await;
     let robot_saw: Vec<(u16, i16, i16)> = picked.iter().map(|p| (p.type_id, p.x as i16, p.y as i16)).collect();
     assert_eq!(robot_saw, accepted_by_plc, "same parts, same order");
-    fanuc.stop();
 }

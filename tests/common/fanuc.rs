@@ -248,3 +248,49 @@ pub async fn tp_program(fanuc: Arc<Mutex<State>>, prog: Program, stop: Cancellat
     }
     picked
 }
+
+/// A robot cell for whole-appliance tests: a simulated controller running the reference TP
+/// program, and the `[camera.robot]` table that points a camera at it.
+pub struct Cell {
+    pub fanuc: Fanuc,
+    /// Input words start at word 10, output words at 30.
+    pub robot_toml: String,
+    stop: CancellationToken,
+    program: tokio::task::JoinHandle<Vec<Picked>>,
+}
+
+impl Cell {
+    pub const IN: u16 = 10;
+    pub const OUT: u16 = 30;
+
+    pub async fn start(pick: Duration) -> Self {
+        let fanuc = Fanuc::start(Duration::from_secs(30)).await;
+        let stop = CancellationToken::new();
+        let prog = Program { input_at: Self::IN as usize, output_at: Self::OUT as usize, pick };
+        let program = tokio::spawn(tp_program(fanuc.state.clone(), prog, stop.clone()));
+        let robot_toml = format!(
+            "[camera.robot]\naddress = \"{}\"\ninput_words_at = {}\noutput_words_at = {}\npoll_ms = 5\nack_timeout_s = 5",
+            fanuc.addr,
+            Self::IN,
+            Self::OUT
+        );
+        Cell { fanuc, robot_toml, stop, program }
+    }
+
+    /// Waits until the robot program has acknowledged `n` parts (panics after `limit`).
+    pub async fn until_acknowledged(&self, n: usize, limit: Duration) {
+        let end = tokio::time::Instant::now() + limit;
+        while (self.fanuc.output(Self::OUT as usize + 1) as usize) < n {
+            assert!(tokio::time::Instant::now() < end, "the robot acknowledged {} of {n} parts", self.fanuc.output(Self::OUT as usize + 1));
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+
+    /// Stops the program and the controller; the parts picked, in order.
+    pub async fn picked(self) -> Vec<Picked> {
+        self.stop.cancel();
+        let picked = self.program.await.expect("the TP program ends");
+        self.fanuc.stop();
+        picked
+    }
+}
