@@ -8,7 +8,8 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
-use crate::registers::{self as map, RobotView, addr, error_code, i16_word, status, u16_word};
+pub use crate::registers::WordOrder;
+use crate::registers::{self as map, RobotView, addr, error_code, i16_word, status, u16_word, u32_from_words, u32_words};
 use crate::vision::Reason;
 
 /// One part's result as the PLC sees it, in the robot frame.
@@ -59,14 +60,6 @@ impl Fault {
 pub enum Command {
     /// Take a frame and report it with [`Handshake::complete`] under this acquisition id.
     Acquire { acq_id: u16 },
-}
-
-/// Float word order in the result block.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum WordOrder {
-    #[default]
-    HighFirst,
-    LowFirst,
 }
 
 /// Order of a frame's parts in the result queue: accepted parts first (after the
@@ -210,15 +203,10 @@ impl Handshake {
 
     /// READY = ONLINE and not BUSY and CAMERA_OK and not ERROR (a full queue does not clear
     /// it): exactly when a TRIGGER edge starts an acquisition, so a PLC that waits for READY
-    /// never triggers into an error it has not cleared.
+    /// never triggers into an error it has not cleared, and a free-running camera takes a frame
+    /// only then (its files wait in the inbox meanwhile rather than be consumed unseen).
     pub fn ready(&self) -> bool {
         self.online && self.busy.is_none() && self.camera_ok && !self.error
-    }
-
-    /// Whether a frame taken now could be used (the same as READY: a free-running camera leaves
-    /// frames in its inbox while not ready rather than consume them unseen).
-    pub fn can_acquire(&self) -> bool {
-        self.ready()
     }
 
     pub fn status(&self) -> u16 {
@@ -321,20 +309,12 @@ impl Handshake {
 
     /// One word of a two-word value (a float's bits, a uint32) in the camera's word order.
     fn split(&self, v: u32, second: bool) -> u16 {
-        let (hi, lo) = ((v >> 16) as u16, v as u16);
-        match (self.settings.word_order, second) {
-            (WordOrder::HighFirst, false) | (WordOrder::LowFirst, true) => hi,
-            _ => lo,
-        }
+        u32_words(v, self.settings.word_order)[second as usize]
     }
 
     /// USER_DATA as a number, from its two words in the camera's word order.
     pub fn user_data(&self) -> u32 {
-        let [a, b] = self.user_data.map(u32::from);
-        match self.settings.word_order {
-            WordOrder::HighFirst => (a << 16) | b,
-            WordOrder::LowFirst => (b << 16) | a,
-        }
+        u32_from_words(self.user_data, self.settings.word_order)
     }
 
     /// Registers `start..start+count` in one consistent snapshot.

@@ -32,12 +32,15 @@ pub enum ImageError {
 /// about 150 MP, this product's cameras 5). Checked in the header, before anything is allocated.
 pub const MAX_PIXELS: u64 = 64 << 20;
 
+/// A PNG's first eight bytes.
+const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
+
 /// A PNG's last chunk: IEND, zero length, fixed CRC.
 const PNG_END: [u8; 12] = [0, 0, 0, 0, b'I', b'E', b'N', b'D', 0xAE, 0x42, 0x60, 0x82];
 
 /// The size a PNG or JPEG header declares, if it is one of those and the header is readable.
 fn declared_size(bytes: &[u8]) -> Option<(u64, u64)> {
-    if bytes.starts_with(b"\x89PNG\r\n\x1a\n") && bytes.len() >= 24 && &bytes[12..16] == b"IHDR" {
+    if bytes.starts_with(PNG_SIGNATURE) && bytes.len() >= 24 && &bytes[12..16] == b"IHDR" {
         let be = |i: usize| u32::from_be_bytes([bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]]) as u64;
         return Some((be(16), be(20)));
     }
@@ -62,7 +65,7 @@ fn declared_size(bytes: &[u8]) -> Option<(u64, u64)> {
 /// more than [`MAX_PIXELS`].
 fn check_complete(bytes: &[u8], path: &Path) -> Result<(), ImageError> {
     let truncated = |format| ImageError::Truncated { path: path.to_path_buf(), format, len: bytes.len() };
-    if bytes.starts_with(b"\x89PNG\r\n\x1a\n") && !bytes.ends_with(&PNG_END) {
+    if bytes.starts_with(PNG_SIGNATURE) && !bytes.ends_with(&PNG_END) {
         return Err(truncated("PNG"));
     }
     if bytes.starts_with(&[0xFF, 0xD8]) {
@@ -185,15 +188,21 @@ mod tests {
 
     #[test]
     fn a_frame_declaring_too_many_pixels_is_refused_before_decoding() {
-        // A valid 20000 x 20000 PNG header and end, no pixel data: refused from the header.
-        let mut png = b"\x89PNG\r\n\x1a\n\x00\x00\x00\x0dIHDR".to_vec();
-        png.extend(20000u32.to_be_bytes());
-        png.extend(20000u32.to_be_bytes());
-        png.extend([8, 0, 0, 0, 0, 0, 0, 0, 0]);
-        png.extend(PNG_END);
-        let e = decode_gray(&png, Path::new("huge.png")).unwrap_err();
+        // A valid PNG header and end, no pixel data: refused from the header.
+        let png = |w: u32, h: u32| {
+            let mut png = [PNG_SIGNATURE, b"\x00\x00\x00\x0dIHDR"].concat();
+            png.extend(w.to_be_bytes());
+            png.extend(h.to_be_bytes());
+            png.extend([8, 0, 0, 0, 0, 0, 0, 0, 0]);
+            png.extend(PNG_END);
+            png
+        };
+        let e = decode_gray(&png(20000, 20000), Path::new("huge.png")).unwrap_err();
         assert!(matches!(e, ImageError::TooLarge { width: 20000, height: 20000, .. }), "{e}");
         assert!(e.to_string().contains("huge.png"), "{e}");
+        // The largest sizes a PNG header can declare (their product still fits in 64 bits).
+        let e = decode_gray(&png(u32::MAX, u32::MAX), Path::new("max.png")).unwrap_err();
+        assert!(matches!(e, ImageError::TooLarge { .. }), "{e}");
         let jpeg = encode_mat(&GrayImage::new(640, 480, 9).to_mat().unwrap(), ".jpg").unwrap();
         assert_eq!(declared_size(&jpeg), Some((640, 480)));
     }

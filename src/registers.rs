@@ -397,6 +397,32 @@ pub fn robot_bits(configured: bool, connected: bool, waiting: bool, timed_out: b
     b
 }
 
+/// Order of the two words of a float32 or uint32 (per camera: `float_word_order`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum WordOrder {
+    #[default]
+    HighFirst,
+    LowFirst,
+}
+
+/// A 32-bit value (a float's bits, a uint32) as two register words in `order`.
+pub fn u32_words(v: u32, order: WordOrder) -> [u16; 2] {
+    let (hi, lo) = ((v >> 16) as u16, v as u16);
+    match order {
+        WordOrder::HighFirst => [hi, lo],
+        WordOrder::LowFirst => [lo, hi],
+    }
+}
+
+/// The 32-bit value two register words in `order` hold (the inverse of [`u32_words`]).
+pub fn u32_from_words(w: [u16; 2], order: WordOrder) -> u32 {
+    let [first, second] = w.map(u32::from);
+    match order {
+        WordOrder::HighFirst => (first << 16) | second,
+        WordOrder::LowFirst => (second << 16) | first,
+    }
+}
+
 /// A value as an unsigned register word, rounded and saturated at 0..65535.
 pub fn u16_word(v: f64) -> u16 {
     v.round().clamp(0.0, 65535.0) as u16
@@ -423,5 +449,16 @@ mod tests {
         assert!(writable(5) && writable(6), "both words of USER_DATA");
         assert_eq!(lookup(213).unwrap().name, "ANGLE_F32");
         assert_eq!(lookup(220).unwrap().name, "RESULT_USER_DATA");
+    }
+
+    #[test]
+    fn two_word_values_round_trip_in_either_order() {
+        for order in [WordOrder::HighFirst, WordOrder::LowFirst] {
+            for v in [0, 1, 0x1234_5678, u32::MAX] {
+                assert_eq!(u32_from_words(u32_words(v, order), order), v, "{order:?}");
+            }
+        }
+        assert_eq!(u32_words(0x1234_5678, WordOrder::HighFirst), [0x1234, 0x5678]);
+        assert_eq!(u32_words(0x1234_5678, WordOrder::LowFirst), [0x5678, 0x1234]);
     }
 }

@@ -217,15 +217,15 @@ fn complete_returns_the_final_results_every_consumer_takes() {
 fn a_fault_names_its_error_code_and_stops_acquiring_until_cleared() {
     for (fault, code) in [(Fault::Camera, error_code::CAMERA), (Fault::Frame, error_code::FRAME)] {
         let mut h = hs(8);
-        assert!(h.can_acquire());
+        assert!(h.ready());
         let id = trigger(&mut h, 0).unwrap();
-        assert!(!h.can_acquire(), "busy");
+        assert!(!h.ready(), "busy");
         h.complete(id, Outcome::Failed { fault }, ms(1));
         assert_eq!(h.word(addr::ERROR_CODE), code);
-        assert!(!h.can_acquire(), "{fault:?}: a frame now would be consumed unseen");
+        assert!(!h.ready(), "{fault:?}: a frame now would be consumed unseen");
         assert_eq!(h.word(addr::STATUS) & (status::READY | status::ERROR), status::ERROR, "{fault:?}: READY while ERROR");
         h.write(addr::CLEAR_ERROR, 1, ms(2));
-        assert!(h.can_acquire());
+        assert!(h.ready());
         assert!(h.word(addr::STATUS) & status::READY != 0, "{fault:?}: READY again once cleared");
     }
 }

@@ -86,7 +86,7 @@ impl Worker {
                 Trigger::FreeRun => {
                     // Take a frame only when it can be used: a folder's files wait in the inbox
                     // while the camera is offline or in ERROR instead of being consumed unseen.
-                    let can = self.handshake.lock().unwrap_or_else(|p| p.into_inner()).can_acquire();
+                    let can = self.handshake.lock().unwrap_or_else(|p| p.into_inner()).ready();
                     if !can {
                         self.update_camera_ok();
                         std::thread::sleep(Duration::from_millis(50));

@@ -30,7 +30,7 @@ use crate::appliance::{CameraHandle, Running, StartError};
 use crate::config::HttpConfig;
 use crate::handshake::WordOrder;
 use crate::modbus::server::Stats;
-use crate::registers::{self as map, Kind, MAP};
+use crate::registers::{self as map, Kind, MAP, u32_from_words};
 use crate::vision::{Face, Reason};
 
 const PAGE: &str = include_str!("page.html");
@@ -368,10 +368,7 @@ fn decode(words: &[u16], order: WordOrder) -> Vec<RegisterView> {
         .map(|r| {
             let a = r.addr as usize;
             let raw: Vec<u16> = words[a..a + r.kind.words() as usize].to_vec();
-            let joined = match order {
-                WordOrder::HighFirst => ((raw[0] as u32) << 16) | raw.get(1).copied().unwrap_or(0) as u32,
-                WordOrder::LowFirst => ((raw.get(1).copied().unwrap_or(0) as u32) << 16) | raw[0] as u32,
-            };
+            let joined = u32_from_words([raw[0], raw.get(1).copied().unwrap_or(0)], order);
             let w = raw[0];
             let value = match (r.kind, r.unit) {
                 (Kind::I16, "0.01 deg") => format!("{:.2} deg", w as i16 as f64 / 100.0),

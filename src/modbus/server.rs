@@ -231,15 +231,14 @@ async fn session(
     let _ = stream.set_nodelay(true);
     let mut buf: Vec<u8> = Vec::with_capacity(512);
     let mut chunk = [0u8; 1024];
-    // Idle time counts from the last complete request, not the last byte; a request under way
-    // must be complete within `frame_timeout` of its first byte.
-    let mut idle_since = tokio::time::Instant::now();
+    // Idle time counts from the last complete request (`last_request`, which the slot table
+    // reads too), not the last byte; a request under way must be complete within
+    // `frame_timeout` of its first byte.
     let mut frame_since: Option<tokio::time::Instant> = None;
     loop {
         loop {
             match frame::decode(&mut buf) {
                 Ok(Some(adu)) => {
-                    idle_since = tokio::time::Instant::now();
                     frame_since = None;
                     *last_request.lock().unwrap_or_else(|p| p.into_inner()) = Instant::now();
                     let out = respond(stations, &adu, peer.ip(), &settings.write_allow, stats);
@@ -259,6 +258,7 @@ async fn session(
         } else if frame_since.is_none() {
             frame_since = Some(tokio::time::Instant::now());
         }
+        let idle_since = tokio::time::Instant::from_std(*last_request.lock().unwrap_or_else(|p| p.into_inner()));
         let idle_end = idle_since + settings.idle_timeout;
         let deadline = frame_since.map_or(idle_end, |t| (t + settings.frame_timeout).min(idle_end));
         let n = tokio::select! {

@@ -11,7 +11,7 @@ use std::collections::VecDeque;
 use std::time::Duration;
 
 use crate::handshake::{PartResult, Queued, WordOrder, angle_word};
-use crate::registers::{RobotView, i16_word, robot_bits, u16_word};
+use crate::registers::{RobotView, i16_word, robot_bits, u16_word, u32_words};
 
 /// Robot input words (offsets from `input_words_at`), written by the appliance.
 pub mod input {
@@ -74,15 +74,6 @@ pub fn markdown() -> String {
 pub fn part_words(p: &PartResult) -> [u16; 6] {
     let (type_id, conf) = if p.accepted { (p.type_id, u16_word(p.confidence.clamp(0.0, 1.0) * 1000.0)) } else { (0, 0) };
     [type_id, p.face, angle_word(p.angle_deg), i16_word(p.x_mm * 10.0), i16_word(p.y_mm * 10.0), conf]
-}
-
-/// Words 8-9: USER_DATA in `order`.
-pub fn user_data_words(v: u32, order: WordOrder) -> [u16; 2] {
-    let (hi, lo) = ((v >> 16) as u16, v as u16);
-    match order {
-        WordOrder::HighFirst => [hi, lo],
-        WordOrder::LowFirst => [lo, hi],
-    }
 }
 
 /// What the driver must do next.
@@ -244,7 +235,7 @@ impl Link {
 
     fn words(&self, q: &Queued) -> [u16; 9] {
         let w = part_words(&q.part);
-        let [u0, u1] = user_data_words(q.user_data, self.word_order);
+        let [u0, u1] = u32_words(q.user_data, self.word_order);
         [w[0], w[1], w[2], w[3], w[4], w[5], self.heartbeat, u0, u1]
     }
 
