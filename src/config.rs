@@ -537,7 +537,15 @@ impl Config {
                     if v.len() != 4 || v.iter().any(|&x| x < 0) || v[2] < 32 || v[3] < 32 {
                         return Err(c.err(k("roi"), format!("{v:?}"), "must be [x, y, width, height] with width and height >= 32"));
                     }
-                    Some([v[0] as usize, v[1] as usize, v[2] as usize, v[3] as usize])
+                    let roi = [v[0] as usize, v[1] as usize, v[2] as usize, v[3] as usize];
+                    // A simulated camera's frame size is known now; a real one's only at the
+                    // first frame (a misfit there is a frame error naming the ROI and the frame).
+                    if let SourceConfig::Sim { width, height, .. } = &source
+                        && (roi[0].saturating_add(roi[2]) > *width || roi[1].saturating_add(roi[3]) > *height)
+                    {
+                        return Err(c.err(k("roi"), format!("{v:?}"), format!("reaches past the simulated {width} x {height} frame")));
+                    }
+                    Some(roi)
                 }
             };
             let calibration = match (&rc.calibration, rc.mm_per_px) {
@@ -576,8 +584,8 @@ impl Config {
                 None => None,
                 Some(r) => {
                     let rk = |f: &str| k(&format!("robot.{f}"));
-                    if r.address.trim().is_empty() {
-                        return Err(c.err(rk("address"), "\"\"", "is empty"));
+                    if let Err(problem) = check_host_port(&r.address) {
+                        return Err(c.err(rk("address"), format!("{:?}", r.address), problem));
                     }
                     let output_function = c.int(&rk("output_function"), r.output_function, 3, 4)?;
                     let input_words_at: u16 = c.int(&rk("input_words_at"), r.input_words_at, 0, 65535 - 9)?; // words 0..=9
@@ -629,6 +637,26 @@ impl Config {
             });
         }
         Ok(Config { path: path.to_path_buf(), modbus, queue_depth, accept_threshold, log_level: raw.log.level.clone(), http, cameras })
+    }
+}
+
+/// A robot controller's address as the link dials it: `host:port` (a name or an IPv4 address)
+/// or `[v6]:port`. Checked at start-up so a missing port is not first noticed as a connection
+/// that never comes up (the standard Modbus port is not assumed: FANUC cells often move it).
+fn check_host_port(address: &str) -> Result<(), &'static str> {
+    if address.trim().is_empty() {
+        return Err("is empty");
+    }
+    let Some((host, port)) = address.rsplit_once(':') else { return Err("has no port: write host:port (Modbus/TCP is usually 502)") };
+    if host.is_empty() || host.chars().any(char::is_whitespace) {
+        return Err("has no host before the port (host:port)");
+    }
+    if host.contains(':') && !(host.starts_with('[') && host.ends_with(']')) {
+        return Err("is an IPv6 address without brackets or without a port: write [addr]:port");
+    }
+    match port.parse::<u16>() {
+        Ok(p) if p > 0 => Ok(()),
+        _ => Err("has a port that is not a number in 1..=65535"),
     }
 }
 
@@ -691,5 +719,29 @@ mod tests {
         assert!(e.contains("modbus.bind"), "{e}");
         let e = err(&format!("{MIN}[camera.calibration]\npoints = [[0, 0, 0, 0]]\n"));
         assert!(e.contains("calibration.points") && e.contains("at least 4"), "{e}");
+    }
+
+    #[test]
+    fn a_robot_address_needs_a_port() {
+        let with = |addr: &str| format!("{MIN}[camera.robot]\naddress = \"{addr}\"\n");
+        for ok in ["10.0.0.5:502", "robot-1.cell:5020", "[fe80::1]:502"] {
+            let c = Config::from_toml(&with(ok), Path::new("x.toml")).unwrap();
+            assert_eq!(c.cameras[0].robot.as_ref().unwrap().address, ok);
+        }
+        for (bad, says) in
+            [("10.0.0.5", "no port"), ("10.0.0.5:", "port"), (":502", "no host"), ("fe80::1", "IPv6"), ("r:70000", "1..=65535")]
+        {
+            let e = err(&with(bad));
+            assert!(e.contains("camera[0].robot.address") && e.contains(bad) && e.contains(says), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn a_roi_must_fit_a_simulated_frame() {
+        let text = MIN.replace("kind = \"sim\"", "kind = \"sim\"\nwidth = 640\nheight = 480");
+        let roi = |r: &str| text.replace("kb_from_simulator = true", &format!("kb_from_simulator = true\nroi = {r}"));
+        assert!(Config::from_toml(&roi("[0, 0, 640, 480]"), Path::new("x.toml")).is_ok());
+        let e = err(&roi("[600, 0, 100, 100]"));
+        assert!(e.contains("camera[0].roi") && e.contains("640 x 480"), "{e}");
     }
 }

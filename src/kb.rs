@@ -48,6 +48,8 @@ pub enum KbError {
     Invalid { path: PathBuf, index: usize, what: String, message: String },
     #[error("type {type_name:?} already has id {existing}; cannot enroll it with id {requested}")]
     IdConflict { type_name: String, existing: u16, requested: u16 },
+    #[error("type name {name:?} {problem}")]
+    TypeName { name: String, problem: &'static str },
     #[error("id {id} already belongs to type {existing:?}; cannot give it to {requested:?}")]
     NameConflict { id: u16, existing: String, requested: String },
 }
@@ -115,6 +117,7 @@ impl KnowledgeBase {
 
     /// Adds a template, replacing the same type and face. Returns true when it replaced one.
     pub fn enroll(&mut self, template: Template, source: String) -> Result<bool, KbError> {
+        check_type_name(&template.type_name).map_err(|problem| KbError::TypeName { name: template.type_name.clone(), problem })?;
         for e in &self.entries {
             let t = &e.template;
             if t.type_name == template.type_name && t.type_id != template.type_id {
@@ -210,9 +213,7 @@ impl KnowledgeBase {
             let index = i + 1;
             let what = format!("type {:?} face {:?}", r.type_name, r.face);
             let bad = |message: String| KbError::Invalid { path: path.into(), index, what: what.clone(), message };
-            if r.type_name.trim().is_empty() {
-                return Err(bad("type is empty".into()));
-            }
+            check_type_name(&r.type_name).map_err(|p| bad(format!("type name {p}")))?;
             if r.id == 0 {
                 return Err(bad("id 0 is reserved; use 1..=65535".into()));
             }
@@ -286,6 +287,25 @@ impl KnowledgeBase {
     pub fn save(&self, path: &Path) -> Result<(), KbError> {
         crate::imageio::write_atomic(path, self.to_toml().as_bytes()).map_err(|source| KbError::Write { path: path.into(), source })
     }
+}
+
+/// Longest type name accepted (it is shown on the page, logged and part of file names).
+pub const TYPE_NAME_MAX: usize = 40;
+
+/// Type names are data that end up in log lines, file names and the page: only ASCII letters,
+/// digits, `-` and `_`, 1 to [`TYPE_NAME_MAX`] long, so none can forge a log line, reach
+/// another directory or carry markup. The one rule for the command line, the page and KB files.
+pub fn check_type_name(name: &str) -> Result<(), &'static str> {
+    if name.is_empty() {
+        return Err("is empty");
+    }
+    if name.len() > TYPE_NAME_MAX {
+        return Err("is longer than 40 characters");
+    }
+    if !name.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_') {
+        return Err("may hold only letters, digits, '-' and '_'");
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -369,5 +389,25 @@ mod tests {
         assert!(e.to_string().contains("colour"), "{e}");
         let truncated = &kb.to_toml()[..kb.to_toml().len() / 2];
         assert!(KnowledgeBase::from_toml(truncated, p).is_err());
+    }
+
+    /// A name with a newline could forge a log line; one with a slash, a file outside the KB's
+    /// folder. Neither gets in, by enrolment or by editing the file.
+    #[test]
+    fn type_names_are_letters_digits_dash_and_underscore() {
+        let mut kb = KnowledgeBase::default();
+        for ok in ["A", "bracket", "flange-2", "C_down_7"] {
+            let id = kb.entries.len() as u16 + 1;
+            kb.enroll(tpl(ok, id, Face::Up), "a".into()).unwrap();
+        }
+        let long = "x".repeat(TYPE_NAME_MAX + 1);
+        for bad in ["", "a b", "evil\nINFO accept", "../etc", "name;", "ä", long.as_str()] {
+            let e = kb.enroll(tpl(bad, 99, Face::Up), "a".into()).unwrap_err();
+            assert!(matches!(e, KbError::TypeName { .. }), "{bad:?}: {e}");
+            assert!(!e.to_string().contains('\n'), "the error itself is one line: {e}");
+        }
+        let edited = kb.to_toml().replace("type = \"flange-2\"", "type = \"flange\\nforged\"");
+        let e = KnowledgeBase::from_toml(&edited, Path::new("kb.toml")).unwrap_err().to_string();
+        assert!(e.contains("kb.toml") && e.contains("template 3") && e.contains("letters, digits"), "{e}");
     }
 }

@@ -13,6 +13,7 @@ pub mod handshake;
 pub mod http;
 pub mod imageio;
 pub mod kb;
+pub mod logging;
 pub mod modbus;
 pub mod overlay;
 pub mod registers;

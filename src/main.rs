@@ -120,14 +120,13 @@ fn parse_point(s: &str) -> Result<Pt, String> {
     Ok(Pt::new(x, y))
 }
 
-fn init_logging(default_level: &str) {
+/// Logging for one-shot commands writes every line; `run` passes a throttle (from inside its
+/// runtime, whose task writes the summaries of held-back lines).
+fn init_logging(default_level: &str, throttle: Option<lfi_bridge::logging::Throttle>) {
     use std::io::IsTerminal;
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        // Colour codes only for a terminal: a file or the journal gets plain text.
-        .with_ansi(std::io::stderr().is_terminal())
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_level.into()))
-        .init();
+    // Colour codes only for a terminal: a file or the journal gets plain text.
+    let ansi = std::io::stderr().is_terminal();
+    let _ = tracing::subscriber::set_global_default(lfi_bridge::logging::subscriber(default_level, ansi, std::io::stderr, throttle));
 }
 
 fn main() -> ExitCode {
@@ -136,7 +135,7 @@ fn main() -> ExitCode {
         let _ = opencv::core::set_num_threads(cli.cv_threads);
     }
     if !matches!(cli.cmd, Cmd::Run { .. }) {
-        init_logging("info");
+        init_logging("info", None);
     }
     let result = match cli.cmd {
         Cmd::Run { config } => run(&config),
@@ -162,13 +161,16 @@ fn run(config: &Path) -> Result<ExitCode> {
     let cfg = match lfi_bridge::config::Config::load(config) {
         Ok(c) => c,
         Err(e) => {
-            init_logging("info");
+            init_logging("info", None);
             return Err(e.into());
         }
     };
-    init_logging(&cfg.log_level);
-    tracing::info!("lfi-bridge {} starting with {}", env!("CARGO_PKG_VERSION"), config.display());
     let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build().context("cannot start the async runtime")?;
+    {
+        let _inside = rt.enter();
+        init_logging(&cfg.log_level, Some(lfi_bridge::logging::Throttle::default()));
+    }
+    tracing::info!("lfi-bridge {} starting with {}", env!("CARGO_PKG_VERSION"), config.display());
     rt.block_on(async {
         let running = lfi_bridge::start(&cfg).await?;
         tracing::info!("ready: PLC registers on {} (see register-map.md); stop with Ctrl-C or SIGTERM", running.modbus_addr);

@@ -84,6 +84,13 @@ async fn enrolling_needs_the_token_and_shows_in_the_registers() {
     assert_eq!(read(&mut ctx, addr::TYPES_ENROLLED, 1).await[0], 4);
     let (st, _, resp) = post(vec![("Authorization", "Bearer test-token-123")], r#"{"part": 7, "type": "x", "id": 10, "face": "up"}"#).await;
     assert_eq!(st, 400, "{}", String::from_utf8_lossy(&resp));
+    // A name that would forge a log line is refused before anything is cut or written.
+    let forged = r#"{"part": 1, "type": "x\nINFO accept", "id": 11, "face": "up"}"#;
+    let (st, _, resp) = post(vec![("Authorization", "Bearer test-token-123")], forged).await;
+    let resp = String::from_utf8_lossy(&resp);
+    assert_eq!(st, 400, "{resp}");
+    assert!(resp.contains("letters, digits"), "{resp}");
+    assert_eq!(read(&mut ctx, addr::TYPES_ENROLLED, 1).await[0], 4, "nothing enrolled");
     running.stop().await;
 
     // Without a token in the configuration the view is read-only.

@@ -11,7 +11,7 @@ use super::source::{Source, SourceError};
 use crate::calibration::Calibration;
 use crate::config::Trigger;
 use crate::handshake::{Command, Fault, Handshake, Outcome, PartResult, Queued};
-use crate::vision::{Estimator, FrameEstimate, GrayImage, PartEstimate};
+use crate::vision::{Estimator, FrameEstimate, GrayImage, MIN_SIDE, PartEstimate};
 
 /// The estimator a camera uses; replaced whole when the operator enrolls a template.
 pub type SharedEstimator = Arc<std::sync::RwLock<Arc<Estimator>>>;
@@ -194,22 +194,7 @@ impl Worker {
 
     fn estimate(&self, img: &GrayImage) -> Result<FrameEstimate, crate::vision::FrameError> {
         let estimator = self.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
-        match self.roi {
-            None => estimator.estimate(img.view()?),
-            Some([x, y, w, h]) => {
-                let crop = img.crop(x, y, w, h).ok_or(crate::vision::FrameError::TooSmall { width: img.width, height: img.height })?;
-                let mut fe = estimator.estimate(crop.view()?)?;
-                for p in &mut fe.parts {
-                    p.x += x as f64;
-                    p.y += y as f64;
-                    for q in &mut p.outline {
-                        q.x += x as f64;
-                        q.y += y as f64;
-                    }
-                }
-                Ok(fe)
-            }
-        }
+        estimate_in(&estimator, img, self.roi)
     }
 
     /// A part's result in the robot frame, as the estimate left it (the handshake makes the
@@ -278,4 +263,47 @@ fn in_final_order(mut fe: FrameEstimate, results: &[Queued]) -> FrameEstimate {
         }
     }
     fe
+}
+
+/// The estimate of a frame, or of its region of interest with positions and outlines moved back
+/// into the whole frame's pixels. A region that does not fit the frame delivered is an error
+/// naming both (a camera whose resolution was changed under a configured ROI).
+fn estimate_in(estimator: &Estimator, img: &GrayImage, roi: Option<[usize; 4]>) -> Result<FrameEstimate, crate::vision::FrameError> {
+    let Some([x, y, w, h]) = roi else { return estimator.estimate(img.view()?) };
+    let misfit = crate::vision::FrameError::Roi { roi: [x, y, w, h], width: img.width, height: img.height };
+    let crop = img.crop(x, y, w, h).filter(|c| c.width >= MIN_SIDE && c.height >= MIN_SIDE).ok_or(misfit)?;
+    let mut fe = estimator.estimate(crop.view()?)?;
+    for p in &mut fe.parts {
+        p.x += x as f64;
+        p.y += y as f64;
+        for q in &mut p.outline {
+            q.x += x as f64;
+            q.y += y as f64;
+        }
+    }
+    Ok(fe)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vision::{FrameError, Params};
+
+    #[test]
+    fn a_roi_past_the_frame_names_the_roi_and_the_frame() {
+        let sim = crate::sim::Simulator::new(crate::sim::SimConfig::default()).unwrap();
+        let names = sim.type_names();
+        let (name, face, image) = &sim.templates().unwrap()[0];
+        let id = names.iter().position(|n| n == name).unwrap() as u16 + 1;
+        let t = crate::vision::Template::from_image(image.view().unwrap(), name, id, *face, None, &Params::default()).unwrap();
+        let estimator = Estimator::new(&[t], Params::default()).unwrap();
+        let img = GrayImage::new(640, 480, 30);
+        assert!(estimate_in(&estimator, &img, Some([0, 0, 640, 480])).is_ok());
+        for roi in [[600, 0, 100, 100], [0, 470, 64, 64], [usize::MAX, 0, 64, 64]] {
+            let e = estimate_in(&estimator, &img, Some(roi)).unwrap_err();
+            assert_eq!(e, FrameError::Roi { roi, width: 640, height: 480 });
+            let text = e.to_string();
+            assert!(text.contains("region of interest") && text.contains("640 x 480"), "{text}");
+        }
+    }
 }

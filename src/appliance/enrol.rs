@@ -56,7 +56,13 @@ pub enum EnrolError {
 impl EnrolError {
     /// The request itself was wrong (the operator can fix it), rather than the appliance.
     pub fn is_request(&self) -> bool {
-        matches!(self, EnrolError::NoPart { .. } | EnrolError::AtBorder { .. } | EnrolError::Template { .. })
+        matches!(
+            self,
+            EnrolError::NoPart { .. }
+                | EnrolError::AtBorder { .. }
+                | EnrolError::Template { .. }
+                | EnrolError::Kb(crate::kb::KbError::TypeName { .. })
+        )
     }
     /// The request conflicts with the state (no frame yet, a type's id taken).
     pub fn is_conflict(&self) -> bool {
@@ -71,6 +77,8 @@ impl CameraHandle {
     /// Enrols a part of the current frame (see the module doc). The knowledge base file is
     /// written first: if it cannot be, the camera keeps its estimator.
     pub fn enrol(&self, req: &EnrolRequest) -> Result<Enrolled, EnrolError> {
+        crate::kb::check_type_name(&req.type_name)
+            .map_err(|problem| crate::kb::KbError::TypeName { name: req.type_name.clone(), problem })?;
         let (frame, estimate, label) = {
             let live = self.live.lock().unwrap_or_else(|p| p.into_inner());
             (live.frame.clone(), live.estimate.clone(), live.label.clone())

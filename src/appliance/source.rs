@@ -92,6 +92,9 @@ impl Source for SimSource {
 
 const IMAGE_EXTENSIONS: [&str; 9] = ["png", "bmp", "tif", "tiff", "jpg", "jpeg", "pgm", "ppm", "pnm"];
 
+/// How many settle times a file must stay empty before it is refused as an empty frame.
+const EMPTY_SETTLE_FACTOR: u32 = 5;
+
 /// Last (size, mtime) seen of a file, and since when it has been unchanged.
 type Seen = (u64, Option<SystemTime>, Instant);
 
@@ -111,11 +114,17 @@ impl DirSource {
         Self { inbox: inbox.to_path_buf(), settle, timeout, watch: HashMap::new() }
     }
 
-    /// The oldest complete file, if any.
-    fn scan(&mut self) -> Option<PathBuf> {
+    /// The oldest complete file, if any, with the reason it can never be a frame when that is
+    /// so: a symlink (it may point anywhere, and could change under us), a directory or other
+    /// non-file with an image name, or a file that stayed empty (0 bytes for
+    /// [`EMPTY_SETTLE_FACTOR`] times the settle time, or at least 1 s, so one the camera has
+    /// only created is not taken too early). Those are moved to `failed/` and named as the frame
+    /// they stand for, never skipped silently.
+    fn scan(&mut self) -> Option<(PathBuf, Option<&'static str>)> {
         let now = Instant::now();
         let Ok(entries) = std::fs::read_dir(&self.inbox) else { return None };
         let mut present = Vec::new();
+        let mut refused = None;
         for e in entries.flatten() {
             let p = e.path();
             let name = e.file_name().to_string_lossy().into_owned();
@@ -124,10 +133,17 @@ impl DirSource {
             if name.starts_with('.') || !ext_ok {
                 continue;
             }
-            let Ok(md) = e.metadata() else { continue };
-            if !md.is_file() {
+            // `DirEntry::file_type` does not follow symlinks: a link is seen as a link.
+            let Ok(kind) = e.file_type() else { continue };
+            if kind.is_symlink() {
+                refused.get_or_insert((p, "a symbolic link, not a file the camera wrote"));
                 continue;
             }
+            if !kind.is_file() {
+                refused.get_or_insert((p, if kind.is_dir() { "a directory, not an image file" } else { "not a regular file" }));
+                continue;
+            }
+            let Ok(md) = e.metadata() else { continue };
             let key = (md.len(), md.modified().ok());
             let entry = self.watch.entry(p.clone()).or_insert((key.0, key.1, now));
             if (entry.0, entry.1) != key {
@@ -136,10 +152,18 @@ impl DirSource {
             present.push(p);
         }
         self.watch.retain(|p, _| present.contains(p));
-        let mut complete: Vec<(&PathBuf, &Seen)> =
-            self.watch.iter().filter(|(_, (size, _, since))| *size > 0 && now.duration_since(*since) >= self.settle).collect();
+        if let Some((p, why)) = refused {
+            self.watch.remove(&p);
+            return Some((p, Some(why)));
+        }
+        let empty_settle = (self.settle * EMPTY_SETTLE_FACTOR).max(Duration::from_secs(1));
+        let mut complete: Vec<(&PathBuf, &Seen)> = self
+            .watch
+            .iter()
+            .filter(|(_, (size, _, since))| now.duration_since(*since) >= if *size > 0 { self.settle } else { empty_settle })
+            .collect();
         complete.sort_by(|a, b| a.1.1.cmp(&b.1.1).then(a.0.cmp(b.0)));
-        complete.first().map(|(p, _)| (*p).clone())
+        complete.first().map(|(p, (size, _, _))| ((*p).clone(), (*size == 0).then_some("an empty file (0 bytes)")))
     }
 
     fn move_to(&self, file: &Path, sub: &str) -> Result<PathBuf, String> {
@@ -156,9 +180,12 @@ impl DirSource {
         Ok(target)
     }
 
-    fn take(&mut self, file: PathBuf) -> Result<Frame, SourceError> {
+    fn take(&mut self, file: PathBuf, refused: Option<&'static str>) -> Result<Frame, SourceError> {
         self.watch.remove(&file);
-        let decoded = imageio::read_gray(&file);
+        let decoded = match refused {
+            Some(why) => Err(format!("{} is {why}", file.display())),
+            None => imageio::read_gray(&file).map_err(|e| format!("{e:#}")),
+        };
         let (sub, result) = match decoded {
             Ok((image, notes)) => {
                 for n in notes {
@@ -166,7 +193,7 @@ impl DirSource {
                 }
                 ("done", Ok(image))
             }
-            Err(e) => ("failed", Err(format!("{e:#}"))),
+            Err(e) => ("failed", Err(e)),
         };
         // Moving out of the inbox is what makes "exactly once": a file that cannot be moved
         // would be seen again, so that is a camera fault, not a frame.
@@ -180,8 +207,8 @@ impl DirSource {
     fn wait_for_file(&mut self, wait: Duration) -> Result<Frame, SourceError> {
         let until = Instant::now() + wait;
         loop {
-            if let Some(f) = self.scan() {
-                return self.take(f);
+            if let Some((f, refused)) = self.scan() {
+                return self.take(f, refused);
             }
             if !self.inbox.is_dir() {
                 return Err(SourceError::Camera(format!("folder {} is missing", self.inbox.display())));
@@ -294,6 +321,34 @@ mod tests {
         assert!(got.iter().any(|r| matches!(r, Err(SourceError::Unusable(m)) if m.contains("failed"))));
         assert!(dir.path().join("done/a.png").exists() && dir.path().join("failed/b.png").exists());
         assert!(dir.path().join("notes.txt").exists());
+    }
+
+    /// An empty file, a symlink and a directory with image names are each one unusable frame
+    /// that names the file, moved to `failed/`, never left in the inbox unmentioned.
+    #[test]
+    fn files_that_can_never_be_frames_are_named_and_moved_aside() {
+        let dir = tempfile::tempdir().unwrap();
+        let outside = tempfile::tempdir().unwrap();
+        let target = outside.path().join("real.png");
+        imageio::write_png(&target, &GrayImage::new(64, 48, 9)).unwrap();
+        std::os::unix::fs::symlink(&target, dir.path().join("link.png")).unwrap();
+        std::fs::create_dir(dir.path().join("d.png")).unwrap();
+        std::fs::write(dir.path().join("empty.png"), b"").unwrap();
+        let mut src = DirSource::new(dir.path(), Duration::from_millis(20), Duration::from_millis(1500));
+        let mut why = Vec::new();
+        for _ in 0..3 {
+            match src.grab() {
+                Err(SourceError::Unusable(m)) => why.push(m),
+                other => panic!("expected an unusable frame, got {other:?}"),
+            }
+        }
+        assert!(matches!(src.grab(), Err(SourceError::Timeout(_))), "nothing is taken twice: {why:?}");
+        for (name, what) in [("link.png", "symbolic link"), ("d.png", "directory"), ("empty.png", "empty file")] {
+            assert!(why.iter().any(|m| m.contains(name) && m.contains(what) && m.contains("failed")), "{name}: {why:?}");
+            assert!(dir.path().join("failed").join(name).symlink_metadata().is_ok(), "{name} moved to failed/");
+            assert!(dir.path().join(name).symlink_metadata().is_err(), "{name} left the inbox");
+        }
+        assert!(target.exists(), "a link's target is never touched");
     }
 
     /// A recorded file stands in for a camera: OpenCV's built-in MJPEG writer needs no codec

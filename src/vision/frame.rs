@@ -23,6 +23,11 @@ pub enum FrameError {
     Depth { depth: String },
     #[error("frame buffer holds {len} bytes; {width} x {height} needs {needed}")]
     BufferSize { len: usize, width: usize, height: usize, needed: usize },
+    /// The configured region of interest does not fit the frame the camera delivered.
+    #[error(
+        "region of interest [x, y, w, h] = {roi:?} does not fit the {width} x {height} frame (it needs x + w <= {width}, y + h <= {height} and w, h >= {MIN_SIDE})"
+    )]
+    Roi { roi: [usize; 4], width: usize, height: usize },
     #[error("OpenCV failed on the frame: {0}")]
     OpenCv(String),
 }

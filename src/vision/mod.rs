@@ -27,7 +27,7 @@ pub mod template;
 
 use std::time::Instant;
 
-pub use frame::{FrameError, GrayImage, GrayView};
+pub use frame::{FrameError, GrayImage, GrayView, MIN_SIDE};
 pub use geometry::Pt;
 pub use lines::{LineDetector, LineFeature, Segment};
 pub use template::{KeepOut, Library, Template, TemplateError};
