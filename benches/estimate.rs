@@ -5,20 +5,11 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use lfi_bridge::sim::{SimConfig, Simulator};
-use lfi_bridge::vision::{Estimator, GrayImage, Params, Template, Timings};
+use lfi_bridge::vision::{Estimator, GrayImage, Params, Timings};
 
 fn setup() -> (Estimator, Vec<(&'static str, GrayImage)>) {
     let sim = Simulator::new(SimConfig { width: 2592, height: 1944, seed: 7, noise: None }).expect("simulator");
-    let names = sim.type_names();
-    let templates: Vec<Template> = sim
-        .templates()
-        .expect("templates")
-        .iter()
-        .map(|(n, f, img)| {
-            let id = names.iter().position(|x| x == n).unwrap() as u16 + 1;
-            Template::from_image(img.view().unwrap(), n, id, *f, None, &Params::default()).expect("enroll")
-        })
-        .collect();
+    let templates = sim.enrolled(&Params::default()).expect("templates enrol");
     let est = Estimator::new(&templates, Params::default()).expect("estimator");
     let frames = vec![
         ("one part, clean", sim.scene_with(0, "clean").unwrap().image),

@@ -49,7 +49,7 @@ pub enum KbError {
     #[error("type {type_name:?} already has id {existing}; cannot enroll it with id {requested}")]
     IdConflict { type_name: String, existing: u16, requested: u16 },
     #[error("type name {name:?} {problem}")]
-    TypeName { name: String, problem: &'static str },
+    TypeName { name: String, problem: String },
     #[error("id {id} already belongs to type {existing:?}; cannot give it to {requested:?}")]
     NameConflict { id: u16, existing: String, requested: String },
 }
@@ -117,7 +117,7 @@ impl KnowledgeBase {
 
     /// Adds a template, replacing the same type and face. Returns true when it replaced one.
     pub fn enroll(&mut self, template: Template, source: String) -> Result<bool, KbError> {
-        check_type_name(&template.type_name).map_err(|problem| KbError::TypeName { name: template.type_name.clone(), problem })?;
+        valid_type_name(&template.type_name)?;
         for e in &self.entries {
             let t = &e.template;
             if t.type_name == template.type_name && t.type_id != template.type_id {
@@ -295,17 +295,22 @@ pub const TYPE_NAME_MAX: usize = 40;
 /// Type names are data that end up in log lines, file names and the page: only ASCII letters,
 /// digits, `-` and `_`, 1 to [`TYPE_NAME_MAX`] long, so none can forge a log line, reach
 /// another directory or carry markup. The one rule for the command line, the page and KB files.
-pub fn check_type_name(name: &str) -> Result<(), &'static str> {
+pub fn check_type_name(name: &str) -> Result<(), String> {
     if name.is_empty() {
-        return Err("is empty");
+        return Err("is empty".into());
     }
     if name.len() > TYPE_NAME_MAX {
-        return Err("is longer than 40 characters");
+        return Err(format!("is longer than {TYPE_NAME_MAX} characters"));
     }
     if !name.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_') {
-        return Err("may hold only letters, digits, '-' and '_'");
+        return Err("may hold only letters, digits, '-' and '_'".into());
     }
     Ok(())
+}
+
+/// [`check_type_name`] as the error an enrolment (command line or page) reports.
+pub fn valid_type_name(name: &str) -> Result<(), KbError> {
+    check_type_name(name).map_err(|problem| KbError::TypeName { name: name.to_string(), problem })
 }
 
 #[cfg(test)]

@@ -292,11 +292,7 @@ mod tests {
     #[test]
     fn a_roi_past_the_frame_names_the_roi_and_the_frame() {
         let sim = crate::sim::Simulator::new(crate::sim::SimConfig::default()).unwrap();
-        let names = sim.type_names();
-        let (name, face, image) = &sim.templates().unwrap()[0];
-        let id = names.iter().position(|n| n == name).unwrap() as u16 + 1;
-        let t = crate::vision::Template::from_image(image.view().unwrap(), name, id, *face, None, &Params::default()).unwrap();
-        let estimator = Estimator::new(&[t], Params::default()).unwrap();
+        let estimator = Estimator::new(&sim.enrolled(&Params::default()).unwrap(), Params::default()).unwrap();
         let img = GrayImage::new(640, 480, 30);
         assert!(estimate_in(&estimator, &img, Some([0, 0, 640, 480])).is_ok());
         for roi in [[600, 0, 100, 100], [0, 470, 64, 64], [usize::MAX, 0, 64, 64]] {

@@ -77,8 +77,8 @@ impl CameraHandle {
     /// Enrols a part of the current frame (see the module doc). The knowledge base file is
     /// written first: if it cannot be, the camera keeps its estimator.
     pub fn enrol(&self, req: &EnrolRequest) -> Result<Enrolled, EnrolError> {
-        crate::kb::check_type_name(&req.type_name)
-            .map_err(|problem| crate::kb::KbError::TypeName { name: req.type_name.clone(), problem })?;
+        // Before anything is cut or written: the name also becomes the template image's file name.
+        crate::kb::valid_type_name(&req.type_name)?;
         let (frame, estimate, label) = {
             let live = self.live.lock().unwrap_or_else(|p| p.into_inner());
             (live.frame.clone(), live.estimate.clone(), live.label.clone())
@@ -96,7 +96,7 @@ impl CameraHandle {
         let estimator = Estimator::new(&kb.templates(), self.params.clone())?;
         let saved = match &self.kb {
             KbSource::File(path) => {
-                let png = path.with_file_name(format!("{}_{}.png", req.type_name.replace(['/', '\\', '.'], "_"), req.face));
+                let png = path.with_file_name(format!("{}_{}.png", req.type_name, req.face));
                 crate::imageio::write_png(&png, &crop).map_err(|e| EnrolError::Image {
                     path: png.clone(),
                     message: format!("{e}{}", e.source().map(|s| format!(": {s}")).unwrap_or_default()),

@@ -20,7 +20,7 @@ use crate::handshake::{Handshake, Settings};
 use crate::kb::KnowledgeBase;
 use crate::modbus::server::{self, Station, Stations, Stats};
 use crate::sim::Simulator;
-use crate::vision::{Estimator, Params, Template};
+use crate::vision::{Estimator, Params};
 pub use camera::Live;
 use camera::Worker;
 use source::{DirSource, SimSource, Source, VideoSource};
@@ -85,12 +85,9 @@ fn templates_for(cam: &CameraConfig, params: &Params) -> Result<(KnowledgeBase, 
                 .map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })?;
             let names = sim.type_names();
             let mut out = KnowledgeBase::default();
-            for (name, face, img) in sim.templates().map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })? {
-                let id = names.iter().position(|n| *n == name).map(|i| i as u16 + 1).unwrap_or(0);
-                let view = img.view().map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })?;
-                let t = Template::from_image(view, &name, id, face, None, params)
-                    .map_err(|e| StartError::Sim { camera: cam.name.clone(), message: format!("template {name} {face}: {e}") })?;
-                out.entries.push(crate::kb::Entry { template: t, source: format!("simulator template {name}_{face}") });
+            for t in sim.enrolled(params).map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })? {
+                let source = format!("simulator template {}_{}", t.type_name, t.face);
+                out.entries.push(crate::kb::Entry { template: t, source });
             }
             let desc = names.iter().enumerate().map(|(i, n)| format!("{n} = {}", i + 1)).collect::<Vec<_>>().join(", ");
             Ok((out, format!("enrolled from the simulated camera's templates ({desc})")))

@@ -66,6 +66,8 @@ pub enum SimError {
     Condition(String),
     #[error("rendering failed: {0}")]
     Render(#[from] opencv::Error),
+    #[error("simulator template {name} {face} does not enrol: {message}")]
+    Template { name: String, face: Face, message: String },
 }
 
 /// Renders scenes and templates of the built-in models.
@@ -105,6 +107,23 @@ impl Simulator {
 
     pub fn unknown_type_name(&self) -> &'static str {
         self.unknown.model.name
+    }
+
+    /// The templates enrolled as a user would: types 1, 2, 3 in [`Simulator::type_names`]
+    /// order, both faces, the unknown model never.
+    pub fn enrolled(&self, params: &crate::vision::Params) -> Result<Vec<crate::vision::Template>, SimError> {
+        let names = self.type_names();
+        let mut out = Vec::new();
+        for (name, face, img) in self.templates()? {
+            let id = names.iter().position(|n| *n == name).map_or(0, |i| i as u16 + 1);
+            let t = img
+                .view()
+                .map_err(|e| e.to_string())
+                .and_then(|v| crate::vision::Template::from_image(v, &name, id, face, None, params).map_err(|e| e.to_string()))
+                .map_err(|message| SimError::Template { name: name.clone(), face, message })?;
+            out.push(t);
+        }
+        Ok(out)
     }
 
     /// One clean template per known type and face: the part at angle 0, its material centroid at

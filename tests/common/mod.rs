@@ -13,15 +13,7 @@ use lfi_bridge::vision::{Estimator, Params, Template};
 
 /// The simulator's templates enrolled as types 1, 2, 3 (the unknown model is left out).
 pub fn enrolled(sim: &Simulator) -> Vec<Template> {
-    let names = sim.type_names();
-    sim.templates()
-        .expect("templates render")
-        .iter()
-        .map(|(name, face, img)| {
-            let id = names.iter().position(|n| n == name).expect("known type") as u16 + 1;
-            Template::from_image(img.view().unwrap(), name, id, *face, None, &Params::default()).expect("template enrolls")
-        })
-        .collect()
+    sim.enrolled(&Params::default()).expect("templates render and enrol")
 }
 
 pub fn simulator(seed: u64, noise: Option<f64>) -> Simulator {
