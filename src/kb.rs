@@ -16,6 +16,7 @@
 //! area_px = 145870.0
 //! outline = [[x, y], ...]       # sub-pixel, template pixels
 //! segments = [[x1, y1, x2, y2, width], ...]
+//! interior = [[x, y, nx, ny], ...]   # edges inside the part, normal bright -> dark (optional)
 //! keep_out = [[x, y, r], ...]   # optional: the gripper's keep-out circles, template pixels
 //! ```
 //!
@@ -80,6 +81,9 @@ struct Record {
     area_px: f64,
     outline: Vec<[f64; 2]>,
     segments: Vec<[f64; 5]>,
+    /// Interior edges [x, y, nx, ny], template pixels (optional: earlier builds wrote none).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    interior: Vec<[f64; 4]>,
     /// Gripper keep-out circles [x, y, r], template pixels (optional).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     keep_out: Vec<[f64; 3]>,
@@ -162,6 +166,7 @@ impl KnowledgeBase {
                         area_px: r3(t.area),
                         outline: t.outline.iter().map(|p| [r3(p.x), r3(p.y)]).collect(),
                         segments: t.segments.iter().map(|s| [r3(s.a.x), r3(s.a.y), r3(s.b.x), r3(s.b.y), r3(s.width)]).collect(),
+                        interior: t.interior.iter().map(|(p, n)| [r3(p.x), r3(p.y), r3(n.x), r3(n.y)]).collect(),
                         keep_out: t.keep_out.iter().map(|k| [r3(k.c.x), r3(k.c.y), r3(k.r)]).collect(),
                     }
                 })
@@ -242,6 +247,13 @@ impl KnowledgeBase {
             if let Some(s) = r.segments.iter().find(|s| !(0.0..=span).contains(&s[4])) {
                 return Err(bad(format!("segment width {} must be 0..={span}", s[4])));
             }
+            // An interior edge is a point on the template and a unit normal (rounded to 3 places).
+            if let Some((k, e)) = r.interior.iter().enumerate().find(|(_, e)| {
+                let unit = e[2].hypot(e[3]);
+                !(e.iter().all(|v| v.is_finite()) && near(e[0]) && near(e[1]) && (unit - 1.0).abs() <= 0.01)
+            }) {
+                return Err(bad(format!("interior[{k}] = {e:?}: an edge [x, y, nx, ny] on the template image, (nx, ny) of length 1")));
+            }
             if r.area_px.is_nan() || r.area_px <= 0.0 || r.area_px > (w * h) as f64 {
                 return Err(bad(format!("area_px = {} must be positive and at most the image's {} pixels", r.area_px, w * h)));
             }
@@ -264,6 +276,7 @@ impl KnowledgeBase {
                 area: r.area_px,
                 outline: r.outline.iter().map(|p| Pt::new(p[0], p[1])).collect(),
                 segments: r.segments.iter().map(|s| Segment { a: Pt::new(s[0], s[1]), b: Pt::new(s[2], s[3]), width: s[4] }).collect(),
+                interior: r.interior.iter().map(|e| (Pt::new(e[0], e[1]), Pt::new(e[2], e[3]))).collect(),
                 keep_out: r.keep_out.iter().map(|c| KeepOut { c: Pt::new(c[0], c[1]), r: c[2] }).collect(),
             };
             if kb.entries.iter().any(|e| e.template.type_name == template.type_name && e.template.face == template.face) {
@@ -329,6 +342,7 @@ mod tests {
             area: 1234.5,
             outline: (0..20).map(|i| Pt::new(50.0 + 20.0 * (i as f64 * 0.314).cos(), 40.0 + 20.0 * (i as f64 * 0.314).sin())).collect(),
             segments: vec![Segment { a: Pt::new(1.0, 2.0), b: Pt::new(30.0, 2.0), width: 2.5 }],
+            interior: vec![(Pt::new(45.0, 38.0), Pt::new(0.6, -0.8))],
             keep_out: Vec::new(),
         }
     }
@@ -394,6 +408,15 @@ mod tests {
         assert!(e.to_string().contains("colour"), "{e}");
         let truncated = &kb.to_toml()[..kb.to_toml().len() / 2];
         assert!(KnowledgeBase::from_toml(truncated, p).is_err());
+        // An interior edge's normal must be a unit vector.
+        let text = kb.to_toml();
+        assert!(text.contains("interior = [[45.0, 38.0, 0.6, -0.8]]"), "{text}");
+        let bad_normal = text.replace("[45.0, 38.0, 0.6, -0.8]", "[45.0, 38.0, 3.0, 0.0]");
+        let e = KnowledgeBase::from_toml(&bad_normal, p).unwrap_err();
+        assert!(e.to_string().contains("interior[0]") && e.to_string().contains("length 1"), "{e}");
+        // A knowledge base from an earlier build has none, and still loads.
+        let earlier = text.replace("interior = [[45.0, 38.0, 0.6, -0.8]]\n", "");
+        assert!(KnowledgeBase::from_toml(&earlier, p).unwrap().templates()[0].interior.is_empty());
     }
 
     /// A name with a newline could forge a log line; one with a slash, a file outside the KB's

@@ -48,7 +48,8 @@ pub fn draw(frame: GrayView<'_>, est: &FrameEstimate, estimator: &Estimator, sca
         if let Some((i, pose)) = p.matched
             && let Some(t) = templates.get(i)
         {
-            let mapped: Vec<Pt> = t.outline.iter().map(|&q| pose.apply(q)).collect();
+            let to_frame = pose.forward();
+            let mapped: Vec<Pt> = t.outline.iter().map(|&q| to_frame.apply(q)).collect();
             poly(&mut img, &mapped, scale, bgr(BLUE), 1)?;
         }
         poly(&mut img, &p.outline, scale, color, thick)?;

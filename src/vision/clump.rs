@@ -20,9 +20,7 @@ use opencv::imgproc;
 use opencv::prelude::*;
 
 use super::detect::{Blob, Coarse};
-use super::geometry::{
-    Pt, Similarity, angle_diff_deg, area_centroid, bounds, contains, outward_normals, resample_closed, rotate_display, smooth_closed,
-};
+use super::geometry::{Pt, Similarity, angle_diff_deg, area_centroid, bounds, contains, outward_normals, resample_closed, smooth_closed};
 use super::register::{self, OutlineIndex, Registration};
 use super::template::Library;
 
@@ -158,7 +156,7 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     });
     hyps.truncate(MAX_HYPOTHESES);
     let ext = OutlineIndex::new(region.outline);
-    let edge = EdgeTest::new(region);
+    let edge = EdgeTest::new(region.coarse, region.noise, region.contrast);
     let mut found: Vec<Found> = Vec::new();
     for (ei, init, _) in hyps {
         let e = &lib.entries[ei];
@@ -247,6 +245,27 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             idx.iter().filter(|&&j| pts[j].across.abs() >= 0.4 * edge.threshold).count() as f64 / n,
         )
     };
+    // The features inside a part where the other lies: (how many, the fraction that shows with
+    // the template's polarity).
+    let features = |x: &Found, zone: &Mat| -> (usize, f64) {
+        let t = &lib.entries[x.entry].template;
+        let pose = x.reg.pose;
+        let (to_frame, turn) = (
+            pose.forward(),
+            Similarity { from: Pt::new(0.0, 0.0), to: Pt::new(0.0, 0.0), angle_rad: pose.angle_rad, scale: 1.0 }.forward(),
+        );
+        let (mut n, mut seen) = (0usize, 0usize);
+        for &(q, nq) in &t.interior {
+            let at = to_frame.apply(q);
+            if at_mask(zone, region.blob, at, f) {
+                n += 1;
+                if edge.across(at, turn.apply(nq)) >= edge.threshold {
+                    seen += 1;
+                }
+            }
+        }
+        (n, if n > 0 { seen as f64 / n as f64 } else { 0.0 })
+    };
     let mut over: Vec<Vec<usize>> = vec![Vec::new(); found.len()];
     for (a, &i) in keep.iter().enumerate() {
         for &k in &keep[a + 1..] {
@@ -261,15 +280,23 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             // and shade show the upper one's outline faintly; it still decides where the lower
             // one's shows nothing at all and its mean step is larger by the margin.
             let enough = ii.len().min(kk.len()) >= 20;
-            let on_top = |a: (f64, f64, f64), b: (f64, f64, f64)| {
+            // The features inside: where one part's own (holes' rims, pockets, bosses) show
+            // almost all over the other and the other's show hardly at all there, an outline that
+            // leans the same way, short of deciding alone, is enough. Features alone never
+            // decide: a lower part's show through an upper part's hole.
+            let (fi, fk) = (features(&found[i], &deep[k]), features(&found[k], &deep[i]));
+            let shows = |x: (usize, f64)| x.0 >= FEATURES_MIN && x.1 >= FEATURES_SHOWN;
+            let hidden = |x: (usize, f64)| x.0 < FEATURES_MIN || x.1 <= FEATURES_HIDDEN;
+            let on_top = |a: (f64, f64, f64), b: (f64, f64, f64), fa: (usize, f64), fb: (usize, f64)| {
                 let clear = a.2 >= 0.4 && a.2 >= b.2 + 0.2 && !(b.0 > a.0 + m && b.1 > a.1 + m);
                 let faint = enough && a.2 >= 0.15 && b.2 <= 0.05 && a.0 >= b.0 + m;
-                clear || faint
+                let featured = shows(fa) && hidden(fb) && a.2 >= b.2 + 0.1 && a.0 >= b.0;
+                clear || faint || featured
             };
-            if on_top(si, sk) {
+            if on_top(si, sk, fi, fk) {
                 found[k].under.get_or_insert(i);
                 over[i].extend(ii);
-            } else if on_top(sk, si) {
+            } else if on_top(sk, si, fk, fi) {
                 found[i].under.get_or_insert(k);
                 over[k].extend(kk);
             } else {
@@ -439,18 +466,26 @@ struct EdgeTest<'a> {
 }
 
 impl<'a> EdgeTest<'a> {
-    fn new(region: &'a Region<'_>) -> Self {
-        let f = region.coarse.factor as f64;
+    fn new(coarse: &'a Coarse, noise: f64, contrast: f64) -> Self {
+        let f = coarse.factor as f64;
         // Decimation averages about f/2 x f/2 pixels (bilinear of the middle 2 x 2 at f = 4) and the
         // blur divides white noise by 2 sqrt(pi) sigma; a difference of two samples has sqrt 2 x.
-        let sigma_b = region.noise / (f / 2.0).max(1.0) / (2.0 * std::f64::consts::PI.sqrt() * 1.5);
-        let threshold = (0.25 * region.contrast).max(4.0 * std::f64::consts::SQRT_2 * sigma_b).max(4.0);
-        let m = &region.coarse.blurred;
+        let sigma_b = noise / (f / 2.0).max(1.0) / (2.0 * std::f64::consts::PI.sqrt() * 1.5);
+        let threshold = (0.25 * contrast).max(4.0 * std::f64::consts::SQRT_2 * sigma_b).max(4.0);
+        let m = &coarse.blurred;
         let img = m.data_bytes().unwrap_or(&[]);
         let (width, height) = if img.is_empty() { (0, 0) } else { (m.cols() as usize, m.rows() as usize) };
         // Mean steps over dozens of points: a few noise sigmas of one step suffice.
-        let margin = (2.0 * std::f64::consts::SQRT_2 * sigma_b).max(0.03 * region.contrast).max(2.0);
-        Self { img, width, height, factor: region.coarse.factor, threshold, margin }
+        let margin = (2.0 * std::f64::consts::SQRT_2 * sigma_b).max(0.03 * contrast).max(2.0);
+        Self { img, width, height, factor: coarse.factor, threshold, margin }
+    }
+
+    /// Gray-level gradient of the blurred decimated frame at `p` (frame pixels, per decimated
+    /// pixel), by central differences.
+    fn gradient(&self, p: Pt) -> Option<Pt> {
+        let f = self.factor as f64;
+        let (dx, dy) = (Pt::new(f, 0.0), Pt::new(0.0, f));
+        Some(Pt::new((self.sample(p + dx)? - self.sample(p - dx)?) / 2.0, (self.sample(p + dy)? - self.sample(p - dy)?) / 2.0))
     }
 
     fn sample(&self, p: Pt) -> Option<f64> {
@@ -497,6 +532,65 @@ impl<'a> EdgeTest<'a> {
     }
 }
 
+/// Least distance of an interior edge from the part's outline, frame pixels: three decimated
+/// pixels, beyond the reach of [`EdgeTest::across`] (two and a half), so that the outline's own
+/// step never counts as a feature inside.
+const INTERIOR_MARGIN: f64 = 12.0;
+/// Interior edge points of a part over another that make its features count at all.
+const FEATURES_MIN: usize = 8;
+/// Fraction of them showing for the features to show (see [`explain`]).
+const FEATURES_SHOWN: f64 = 0.8;
+/// Fraction of them at most showing for the features to be hidden.
+const FEATURES_HIDDEN: f64 = 0.2;
+/// Most interior edge points kept per template.
+const INTERIOR_MAX: usize = 1500;
+
+/// The edges inside a part (holes, pockets, bosses, ribs) as the coarse stage sees them: points
+/// of the decimated Canny edges at least [`INTERIOR_MARGIN`] inside `outline`, each with the
+/// unit normal pointing from the brighter side to the darker, kept where the step across is at
+/// least a third of the part's contrast against the belt (the features any frame of this part
+/// shows, not its surface's texture). Which of two overlapping parts lies on top is seen most
+/// surely where they overlap: the upper part's features show there, the lower part's are
+/// hidden under the upper's surface.
+pub fn interior_edges(coarse: &Coarse, outline: &[Pt], noise: f64, contrast: f64) -> Vec<(Pt, Pt)> {
+    let edges = &coarse.edges;
+    let Ok(data) = edges.data_bytes() else {
+        return Vec::new();
+    };
+    let (w, h) = (edges.cols().max(0) as usize, edges.rows().max(0) as usize);
+    if data.len() < w * h || outline.len() < 3 {
+        return Vec::new();
+    }
+    let test = EdgeTest::new(coarse, noise, contrast);
+    let index = OutlineIndex::new(outline);
+    let poly = resample_closed(outline, 4.0);
+    let f = coarse.factor as f64;
+    let least = (contrast / 3.0).max(test.threshold);
+    let mut out = Vec::new();
+    for v in 0..h {
+        for u in 0..w {
+            if data[v * w + u] == 0 {
+                continue;
+            }
+            let p = Pt::new(u as f64 * f + (f - 1.0) / 2.0, v as f64 * f + (f - 1.0) / 2.0);
+            if !contains(&poly, p) || index.nearest(p, INTERIOR_MARGIN).is_some() {
+                continue;
+            }
+            let Some(g) = test.gradient(p) else { continue };
+            let len = g.norm();
+            if len <= 0.0 {
+                continue;
+            }
+            let n = Pt::new(-g.x / len, -g.y / len);
+            if test.across(p, n) >= least {
+                out.push((p, n));
+            }
+        }
+    }
+    let stride = out.len().div_ceil(INTERIOR_MAX).max(1);
+    out.into_iter().step_by(stride).collect()
+}
+
 /// One verification point of a template's outline at a hypothesised pose.
 #[derive(Debug, Clone, Copy)]
 struct Probe {
@@ -524,9 +618,11 @@ fn verify(
     moved: bool,
 ) -> (f64, Vec<Probe>) {
     let mut pts = Vec::with_capacity(model.verify.len() / stride + 1);
+    let to_frame = pose.forward();
+    let turn = Similarity { from: Pt::new(0.0, 0.0), to: Pt::new(0.0, 0.0), angle_rad: pose.angle_rad, scale: 1.0 }.forward();
     for &(m, n) in model.verify.iter().step_by(stride) {
-        let at = pose.apply(m);
-        let nn = rotate_display(n, pose.angle_rad);
+        let at = to_frame.apply(m);
+        let nn = turn.apply(n);
         // Within the tolerance anywhere, or within twice it where the region's outline runs
         // parallel to the template's, offset straight along the normal: a rounded part's
         // silhouette moves with the light, and a cast part's arm is a few pixels thinner or
@@ -547,12 +643,13 @@ fn verify(
 fn mask_of(lib: &Library, f: &Found, blob: &Blob, factor: usize) -> opencv::Result<Mat> {
     let t = &lib.entries[f.entry].template;
     let mut mask = Mat::new_rows_cols_with_default(blob.mask.rows(), blob.mask.cols(), core::CV_8UC1, Scalar::all(0.0))?;
+    let to_frame = f.reg.pose.forward();
     let poly: Vector<Point> = t
         .outline
         .iter()
         .step_by(2)
         .map(|&q| {
-            let p = f.reg.pose.apply(q);
+            let p = to_frame.apply(q);
             let (u, v) = to_mask(p, factor, blob);
             Point::new((u * 16.0).round() as i32, (v * 16.0).round() as i32)
         })

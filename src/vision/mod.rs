@@ -463,7 +463,8 @@ impl Estimator {
             let e = &self.lib.entries[f.entry];
             let tpl = &e.template;
             let pose = f.reg.pose;
-            let origin = pose.apply(tpl.origin);
+            let to_frame = pose.forward();
+            let origin = to_frame.apply(tpl.origin);
             let mut est = PartEstimate {
                 type_name: Some(tpl.type_name.clone()),
                 type_id: tpl.type_id,
@@ -478,7 +479,7 @@ impl Estimator {
                 decision: Decision::new(Verdict::OrderUnclear, Evidence::default()),
                 fit: f.support,
                 matched: Some((f.entry, pose)),
-                outline: tpl.outline.iter().map(|&q| pose.apply(q)).collect(),
+                outline: tpl.outline.iter().map(|&q| to_frame.apply(q)).collect(),
                 axis: None,
                 segments: Vec::new(),
                 descriptor: Vec::new(),
@@ -845,10 +846,11 @@ pub fn confidence(expected: &[Segment], found: &[Segment], pose: &Similarity, si
         return 0.0;
     }
     let n = expected.len() as f64;
+    let to_frame = pose.forward();
     let sum: f64 = expected
         .iter()
         .map(|s| {
-            let mapped = Segment { a: pose.apply(s.a), b: pose.apply(s.b), width: s.width };
+            let mapped = Segment { a: to_frame.apply(s.a), b: to_frame.apply(s.b), width: s.width };
             let gamma = n * s.len() / total;
             gamma * (-lambda * lines::segment_error(&mapped, found, size)).exp()
         })

@@ -33,6 +33,11 @@ pub struct Template {
     pub outline: Vec<Pt>,
     /// Line segments (frame of the template image).
     pub segments: Vec<Segment>,
+    /// Edges inside the part (holes, pockets, bosses): points and the unit normal from the
+    /// brighter side to the darker, template pixels (see [`super::clump::interior_edges`]). They
+    /// tell which of two overlapping parts lies on top. Empty (a knowledge base from an earlier
+    /// build, a featureless part): the outlines alone tell it.
+    pub interior: Vec<(Pt, Pt)>,
     /// The gripper's keep-out footprint, template pixels: material of anything else inside it
     /// rejects the part (`no clearance`). Empty: no check.
     pub keep_out: Vec<KeepOut>,
@@ -84,7 +89,9 @@ impl Template {
         if blob.touches_border {
             return Err(TemplateError::AtBorder);
         }
-        let outline = boundary::refine(image, &blob.outline, noise, &params.refine_params(coarse.factor)).outline;
+        let refined = boundary::refine(image, &blob.outline, noise, &params.refine_params(coarse.factor));
+        let interior = super::clump::interior_edges(&coarse, &refined.outline, noise, refined.contrast);
+        let outline = refined.outline;
         let (area, centroid) = area_centroid(&outline);
         let (lo, hi) = bounds(&outline);
         let diag = (hi - lo).norm();
@@ -108,6 +115,7 @@ impl Template {
             area: area.abs(),
             outline,
             segments,
+            interior,
             keep_out: Vec::new(),
         })
     }
@@ -155,5 +163,63 @@ impl Library {
             })
             .collect();
         Self { entries, correlator }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vision::frame::GrayImage;
+
+    /// A bright plate (radius 150) on a dark belt with a dark hole (radius 40) off its centre.
+    fn plate_with_hole() -> (GrayImage, Pt, Pt) {
+        let (c, hole) = (Pt::new(200.0, 200.0), Pt::new(240.0, 180.0));
+        let mut img = GrayImage::new(400, 400, 50);
+        for y in 0..400 {
+            for x in 0..400 {
+                let p = Pt::new(x as f64, y as f64);
+                if (p - c).norm() <= 150.0 && (p - hole).norm() > 40.0 {
+                    img.data[y * 400 + x] = 180;
+                }
+            }
+        }
+        (img, c, hole)
+    }
+
+    #[test]
+    fn interior_edges_are_the_rims_of_features_with_normals_towards_the_dark_side() {
+        let (img, c, hole) = plate_with_hole();
+        let t = Template::from_image(img.view().unwrap(), "plate", 1, Face::Up, None, &Params::default()).unwrap();
+        assert!(t.interior.len() >= 20, "{} interior edge points", t.interior.len());
+        for &(p, n) in &t.interior {
+            // On the hole's rim (the decimated grid is 4 px), never on the outline.
+            let r = (p - hole).norm();
+            assert!((r - 40.0).abs() <= 6.0, "interior point {p:?} is {r:.1} px from the hole's centre");
+            assert!((p - c).norm() < 150.0 - 12.0);
+            // From the bright plate into the dark hole.
+            let inward = (hole - p).scale(1.0 / r);
+            assert!(n.dot(inward) > 0.8, "normal {n:?} at {p:?} does not point into the hole");
+        }
+        // The rim all round: points in every quarter of it.
+        for q in 0..4 {
+            let from = q as f64 * std::f64::consts::FRAC_PI_2;
+            let quarter = |p: Pt| (p - hole).display_angle().rem_euclid(std::f64::consts::TAU);
+            assert!(
+                t.interior.iter().any(|&(p, _)| (from..from + std::f64::consts::FRAC_PI_2).contains(&quarter(p))),
+                "no rim point in quarter {q}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_plain_part_has_no_interior_edges() {
+        let mut img = GrayImage::new(400, 400, 50);
+        for y in 100..300 {
+            for x in 80..330 {
+                img.data[y * 400 + x] = 180;
+            }
+        }
+        let t = Template::from_image(img.view().unwrap(), "block", 1, Face::Up, None, &Params::default()).unwrap();
+        assert!(t.interior.is_empty(), "{} interior edge points on a plain block", t.interior.len());
     }
 }
