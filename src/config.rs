@@ -180,6 +180,26 @@ pub mod raw {
         pub robot: Option<Robot>,
         #[serde(default = "default_picking_order")]
         pub picking_order: String,
+        #[serde(default)]
+        pub archive: Option<Archive>,
+    }
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct Archive {
+        pub dir: String,
+        #[serde(default)]
+        pub save: super::ArchiveSave,
+        #[serde(default = "default_archive_files")]
+        pub max_files: i64,
+        #[serde(default = "default_archive_mb")]
+        pub max_mb: f64,
+    }
+    fn default_archive_files() -> i64 {
+        1000
+    }
+    fn default_archive_mb() -> f64 {
+        2000.0
     }
     fn default_picking_order() -> String {
         "x-descending".into()
@@ -302,6 +322,27 @@ pub enum KbSource {
     Simulator,
 }
 
+/// Which frames the image archive keeps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ArchiveSave {
+    /// Frames with at least one rejected result (a no-part or frame-error result is one).
+    #[default]
+    Rejects,
+    All,
+    None,
+}
+
+/// `[camera.archive]`: where and how many frames are kept (see [`crate::appliance::archive`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ArchiveConfig {
+    pub dir: PathBuf,
+    pub save: ArchiveSave,
+    /// Frames kept (an image and its sidecar are one).
+    pub max_files: usize,
+    pub max_bytes: u64,
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RobotSend {
     Accepted,
@@ -337,6 +378,7 @@ pub struct CameraConfig {
     pub word_order: WordOrder,
     pub robot: Option<RobotConfig>,
     pub picking_order: PickingOrder,
+    pub archive: Option<ArchiveConfig>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -622,6 +664,20 @@ impl Config {
                     ));
                 }
             };
+            let archive = match &rc.archive {
+                None => None,
+                Some(a) => {
+                    if a.dir.trim().is_empty() {
+                        return Err(c.err(k("archive.dir"), "\"\"", "is empty: name the folder frames are kept in"));
+                    }
+                    Some(ArchiveConfig {
+                        dir: base.join(&a.dir),
+                        save: a.save,
+                        max_files: c.int(&k("archive.max_files"), a.max_files, 1, 10_000_000)?,
+                        max_bytes: (c.real(&k("archive.max_mb"), a.max_mb, 1.0, 1e8)? * 1e6) as u64,
+                    })
+                }
+            };
             cameras.push(CameraConfig {
                 unit_id,
                 name: rc.name.clone().unwrap_or_else(|| format!("camera{unit_id}")),
@@ -634,6 +690,7 @@ impl Config {
                 word_order,
                 robot,
                 picking_order,
+                archive,
             });
         }
         Ok(Config { path: path.to_path_buf(), modbus, queue_depth, accept_threshold, log_level: raw.log.level.clone(), http, cameras })
@@ -734,6 +791,25 @@ mod tests {
             let e = err(&with(bad));
             assert!(e.contains("camera[0].robot.address") && e.contains(bad) && e.contains(says), "{bad}: {e}");
         }
+    }
+
+    #[test]
+    fn an_archive_has_a_folder_a_choice_of_frames_and_limits() {
+        let with = |body: &str| format!("{MIN}[camera.archive]\n{body}\n");
+        let c = Config::from_toml(&with("dir = \"frames\""), Path::new("/etc/lfi/x.toml")).unwrap();
+        let a = c.cameras[0].archive.as_ref().unwrap();
+        assert_eq!(a.dir, Path::new("/etc/lfi/frames"), "relative to the configuration file");
+        assert_eq!((a.save, a.max_files, a.max_bytes), (ArchiveSave::Rejects, 1000, 2_000_000_000));
+        let c = Config::from_toml(&with("dir = \"f\"\nsave = \"all\"\nmax_files = 5\nmax_mb = 1.5"), Path::new("x.toml")).unwrap();
+        let a = c.cameras[0].archive.as_ref().unwrap();
+        assert_eq!((a.save, a.max_files, a.max_bytes), (ArchiveSave::All, 5, 1_500_000));
+        let e = err(&with("dir = \"f\"\nsave = \"some\""));
+        assert!(e.contains("some") && e.contains("rejects"), "{e}");
+        let e = err(&with("dir = \"f\"\nmax_files = 0"));
+        assert!(e.contains("camera[0].archive.max_files = 0"), "{e}");
+        let e = err(&with("dir = \" \""));
+        assert!(e.contains("camera[0].archive.dir"), "{e}");
+        assert!(err(&with("save = \"all\"")).contains("dir"), "dir is required");
     }
 
     #[test]

@@ -67,6 +67,8 @@ pub struct Worker {
     /// Accepted (or all) results for the robot link, if one is configured.
     pub robot: Option<tokio::sync::mpsc::UnboundedSender<Queued>>,
     pub robot_sends_all: bool,
+    /// The image archive, if configured (dropped with the worker: it writes what was queued).
+    pub archive: Option<super::archive::Archive>,
 }
 
 impl Worker {
@@ -125,6 +127,8 @@ impl Worker {
     fn process(&mut self, acq_id: u16, frame: Result<super::source::Frame, SourceError>, t0: Instant) {
         let mut debris = 0;
         let mut estimated = None;
+        // A frame that came but could not be estimated is still worth archiving.
+        let mut unusable: Option<(Arc<GrayImage>, String, String)> = None;
         let outcome = match frame {
             Err(e) => {
                 let fault = if matches!(e, SourceError::Unusable(_)) { Fault::Frame } else { Fault::Camera };
@@ -136,13 +140,14 @@ impl Worker {
                 Err(e) => {
                     tracing::warn!(camera = %self.name, acq_id, frame = %f.label, "frame error: {e}");
                     self.note_error(format!("{}: {e}", f.label));
+                    unusable = Some((Arc::new(f.image), f.label, e.to_string()));
                     Outcome::Failed { fault: Fault::Frame }
                 }
                 Ok(fe) => {
                     let parts = fe.parts.iter().map(|p| self.result(p)).collect();
                     let processing_ms = fe.timings.total;
                     debris = fe.debris;
-                    estimated = Some((f.image, f.label, fe));
+                    estimated = Some((Arc::new(f.image), f.label, fe));
                     Outcome::Parts { parts, processing_ms }
                 }
             },
@@ -164,6 +169,18 @@ impl Worker {
         let estimated = estimated.map(|(image, label, fe)| (image, label, in_final_order(fe, &results)));
         if let Some((_, label, fe)) = &estimated {
             self.log(acq_id, label, fe, &results);
+        }
+        if let Some(archive) = &self.archive
+            && archive.wants(&results)
+        {
+            let frame = match (&estimated, &unusable) {
+                (Some((image, label, fe)), _) => Some((image.clone(), label.as_str(), Some(fe), None)),
+                (None, Some((image, label, error))) => Some((image.clone(), label.as_str(), None, Some(error.as_str()))),
+                (None, None) => None, // no frame came: nothing to keep
+            };
+            if let Some((image, label, fe, error)) = frame {
+                archive.offer(archive_item(&self.name, archive.unit_id(), acq_id, &results, image, label, fe, error));
+            }
         }
         let cycle = t0.elapsed().as_secs_f64() * 1e3;
         self.note_results(acq_id, results, estimated, cycle);
@@ -221,7 +238,7 @@ impl Worker {
 
     /// The operator view's copy of an acquisition: counters from the final results (a no-part
     /// or frame-error result counts as a reject with its reason, as the PLC got it).
-    fn note_results(&self, acq_id: u16, results: Vec<Queued>, estimated: Option<(GrayImage, String, FrameEstimate)>, cycle_ms: f64) {
+    fn note_results(&self, acq_id: u16, results: Vec<Queued>, estimated: Option<(Arc<GrayImage>, String, FrameEstimate)>, cycle_ms: f64) {
         let mut live = self.live.lock().unwrap_or_else(|p| p.into_inner());
         for r in &results {
             if r.part.accepted {
@@ -243,13 +260,67 @@ impl Worker {
         live.frames += 1;
         live.debris_total += fe.debris as u64;
         live.debris_last = fe.debris as u64;
-        live.frame = Some(Arc::new(image));
+        live.frame = Some(image);
         live.frame_acq_id = acq_id;
         live.estimate = Some(fe);
         live.label = label;
         live.seq += 1;
         live.at_s = self.started.elapsed().as_secs_f64();
     }
+}
+
+/// A frame's sidecar in the archive: the `estimate --json` record of its final results (in
+/// picking order: `parts[i]` has PART_INDEX `i + 1`) with what ties it to the PLC's view.
+#[derive(serde::Serialize)]
+struct ArchiveRecord<'a> {
+    image: String,
+    camera: &'a str,
+    unit_id: u8,
+    acq_id: u16,
+    /// The job in force; a camera without `[[camera.job]]` tables is job 1.
+    job_id: u16,
+    user_data: u32,
+    /// UTC, RFC 3339, when the frame was estimated.
+    time: String,
+    unix_ms: u64,
+    /// Where the frame came from (file name, scene).
+    frame: &'a str,
+    elapsed_ms: f64,
+    parts: Vec<crate::truth::EstimatePart>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    error: Option<&'a str>,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn archive_item(
+    camera: &str,
+    unit_id: u8,
+    acq_id: u16,
+    results: &[Queued],
+    image: Arc<GrayImage>,
+    label: &str,
+    fe: Option<&FrameEstimate>,
+    error: Option<&str>,
+) -> super::archive::Item {
+    let now = std::time::SystemTime::now();
+    let unix_ms = now.duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis() as u64).unwrap_or(0);
+    let stem = super::archive::stem(unix_ms, unit_id, acq_id);
+    let record = ArchiveRecord {
+        image: format!("{stem}.png"),
+        camera,
+        unit_id,
+        acq_id,
+        job_id: 1,
+        user_data: results.first().map_or(0, |r| r.user_data),
+        time: humantime::format_rfc3339_millis(now).to_string(),
+        unix_ms,
+        frame: label,
+        elapsed_ms: fe.map_or(0.0, |fe| (fe.timings.total * 1000.0).round() / 1000.0),
+        parts: fe.map(|fe| fe.parts.iter().map(crate::truth::EstimatePart::from_estimate).collect()).unwrap_or_default(),
+        error,
+    };
+    let sidecar = serde_json::to_string(&record).expect("an archive record always serialises");
+    super::archive::Item { stem, image, sidecar }
 }
 
 /// The estimate's parts in the final results' order (picking order), each with its final

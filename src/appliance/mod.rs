@@ -2,6 +2,7 @@
 //! robot links, wired together. The imperative shell around [`crate::vision`] and
 //! [`crate::handshake`].
 
+pub mod archive;
 pub mod camera;
 pub mod enrol;
 pub mod source;
@@ -36,6 +37,8 @@ pub enum StartError {
     Sim { camera: String, message: String },
     #[error("camera {camera}: calibration")]
     Calibration { camera: String, source: crate::calibration::CalibrationError },
+    #[error("camera {camera}: image archive {dir}")]
+    Archive { camera: String, dir: std::path::PathBuf, source: std::io::Error },
     #[error("cannot listen for Modbus on {addr}")]
     Bind { addr: SocketAddr, source: std::io::Error },
 }
@@ -53,6 +56,8 @@ pub struct CameraHandle {
     pub templates: Arc<Mutex<KnowledgeBase>>,
     pub params: Params,
     pub robot: Option<Arc<Mutex<crate::registers::RobotView>>>,
+    /// The image archive's counters, if one is configured.
+    pub archive: Option<Arc<archive::Counters>>,
     thread: Mutex<Option<std::thread::JoinHandle<()>>>,
 }
 
@@ -161,6 +166,15 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             }
             None => (None, None),
         };
+        let archive = match &cam.archive {
+            Some(a) => archive::Archive::start(a, &cam.name, cam.unit_id).map_err(|source| StartError::Archive {
+                camera: cam.name.clone(),
+                dir: a.dir.clone(),
+                source,
+            })?,
+            None => None,
+        };
+        let archive_counters = archive.as_ref().map(|a| a.counters.clone());
         let worker = Worker {
             name: cam.name.clone(),
             trigger: cam.trigger,
@@ -175,6 +189,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             stop: stop.clone(),
             robot_sends_all: cam.robot.as_ref().is_some_and(|r| r.send == crate::config::RobotSend::All),
             robot: robot_tx,
+            archive,
         };
         let thread =
             std::thread::Builder::new().name(format!("camera-{}", cam.unit_id)).spawn(move || worker.run()).expect("spawn camera thread");
@@ -189,6 +204,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             templates: Arc::new(Mutex::new(entries)),
             params: params.clone(),
             robot: robot_view,
+            archive: archive_counters,
             thread: Mutex::new(Some(thread)),
         });
     }

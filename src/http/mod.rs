@@ -200,7 +200,7 @@ fn nan_to_zero(v: f64) -> f64 {
 }
 
 /// Metric families: name, type, help.
-const FAMILIES: [(&str, &str, &str); 19] = [
+const FAMILIES: [(&str, &str, &str); 23] = [
     ("lfi_modbus_clients", "gauge", "Modbus/TCP clients connected."),
     ("lfi_modbus_requests_total", "counter", "Modbus requests answered."),
     ("lfi_modbus_exceptions_total", "counter", "Modbus requests answered with an exception."),
@@ -220,6 +220,10 @@ const FAMILIES: [(&str, &str, &str); 19] = [
     ("lfi_robot_connected", "gauge", "1 when the robot link is connected."),
     ("lfi_robot_queue", "gauge", "Parts waiting for the robot."),
     ("lfi_robot_delivered", "gauge", "Parts the robot acknowledged (16-bit counter)."),
+    ("lfi_archive_saved_total", "counter", "Frames written to the image archive."),
+    ("lfi_archive_dropped_total", "counter", "Frames not archived: the archive's queue was full (the disk is slower than the line)."),
+    ("lfi_archive_failed_total", "counter", "Frames the archive could not write (logged)."),
+    ("lfi_archive_deleted_total", "counter", "Archived frames deleted to keep within max_files and max_mb."),
 ];
 
 async fn metrics(State(state): State<AppState>) -> Response {
@@ -272,6 +276,17 @@ async fn metrics(State(state): State<AppState>) -> Response {
                 "lfi_robot_delivered" => {
                     if let Some(v) = robot {
                         line(v.delivered.to_string())
+                    }
+                }
+                "lfi_archive_saved_total" | "lfi_archive_dropped_total" | "lfi_archive_failed_total" | "lfi_archive_deleted_total" => {
+                    if let Some(a) = &c.archive {
+                        let v = match name {
+                            "lfi_archive_saved_total" => &a.saved,
+                            "lfi_archive_dropped_total" => &a.dropped,
+                            "lfi_archive_failed_total" => &a.failed,
+                            _ => &a.deleted,
+                        };
+                        line(v.load(Relaxed).to_string())
                     }
                 }
                 "lfi_parts_rejected_total" => {
