@@ -160,8 +160,8 @@ pub mod raw {
         #[serde(default)]
         pub name: Option<String>,
         pub source: Source,
-        #[serde(default = "default_trigger")]
-        pub trigger: String,
+        #[serde(default)]
+        pub trigger: super::Trigger,
         #[serde(default = "default_online")]
         pub online: bool,
         #[serde(default)]
@@ -174,12 +174,12 @@ pub mod raw {
         pub mm_per_px: Option<f64>,
         #[serde(default)]
         pub calibration: Option<Calibration>,
-        #[serde(default = "default_word_order")]
-        pub float_word_order: String,
+        #[serde(default)]
+        pub float_word_order: super::WordOrder,
         #[serde(default)]
         pub robot: Option<Robot>,
         #[serde(default = "default_picking_order")]
-        pub picking_order: String,
+        pub picking_order: super::PickingOrder,
         #[serde(default)]
         pub archive: Option<Archive>,
     }
@@ -201,17 +201,11 @@ pub mod raw {
     fn default_archive_mb() -> f64 {
         2000.0
     }
-    fn default_picking_order() -> String {
-        "x-descending".into()
-    }
-    fn default_trigger() -> String {
-        "modbus".into()
+    fn default_picking_order() -> super::PickingOrder {
+        super::PickingOrder::XDescending
     }
     fn default_online() -> bool {
         true
-    }
-    fn default_word_order() -> String {
-        "high-first".into()
     }
 
     #[derive(Debug, Deserialize)]
@@ -255,8 +249,8 @@ pub mod raw {
         pub poll_ms: i64,
         #[serde(default = "default_ack_timeout")]
         pub ack_timeout_s: f64,
-        #[serde(default = "default_send")]
-        pub send: String,
+        #[serde(default)]
+        pub send: super::RobotSend,
         #[serde(default = "default_robot_queue")]
         pub queue_depth: i64,
     }
@@ -271,9 +265,6 @@ pub mod raw {
     }
     fn default_ack_timeout() -> f64 {
         30.0
-    }
-    fn default_send() -> String {
-        "accepted".into()
     }
     fn default_robot_queue() -> i64 {
         64
@@ -302,8 +293,11 @@ pub enum SourceConfig {
     Video { uri: String, timeout: Duration },
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// `"modbus"` or `"free-run"`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Trigger {
+    #[default]
     Modbus,
     FreeRun,
 }
@@ -343,8 +337,11 @@ pub struct ArchiveConfig {
     pub max_bytes: u64,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// `"accepted"` or `"all"`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum RobotSend {
+    #[default]
     Accepted,
     All,
 }
@@ -557,11 +554,7 @@ impl Config {
                 }
                 other => return Err(c.err(k("source.kind"), format!("{other:?}"), "is not one of \"sim\", \"dir\", \"video\"")),
             };
-            let trigger = match rc.trigger.as_str() {
-                "modbus" => Trigger::Modbus,
-                "free-run" => Trigger::FreeRun,
-                other => return Err(c.err(k("trigger"), format!("{other:?}"), "is not \"modbus\" or \"free-run\"")),
-            };
+            let trigger = rc.trigger;
             let kb = match (&rc.kb, rc.kb_from_simulator) {
                 (Some(_), true) => return Err(c.err(k("kb_from_simulator"), true, "cannot be combined with kb")),
                 (Some(p), false) => KbSource::File(base.join(p)),
@@ -617,11 +610,7 @@ impl Config {
                 }
                 (None, s) => CalibrationConfig::Scale { mm_per_px: c.real(&k("mm_per_px"), s.unwrap_or(1.0), 1e-6, 1e6)? },
             };
-            let word_order = match rc.float_word_order.as_str() {
-                "high-first" => WordOrder::HighFirst,
-                "low-first" => WordOrder::LowFirst,
-                other => return Err(c.err(k("float_word_order"), format!("{other:?}"), "is not \"high-first\" or \"low-first\"")),
-            };
+            let word_order = rc.float_word_order;
             let robot = match &rc.robot {
                 None => None,
                 Some(r) => {
@@ -640,30 +629,13 @@ impl Config {
                         output_function,
                         poll: Duration::from_millis(c.int(&rk("poll_ms"), r.poll_ms, 1, 60_000)?),
                         ack_timeout: Duration::from_secs_f64(c.real(&rk("ack_timeout_s"), r.ack_timeout_s, 0.05, 86400.0)?),
-                        send: match r.send.as_str() {
-                            "accepted" => RobotSend::Accepted,
-                            "all" => RobotSend::All,
-                            other => return Err(c.err(rk("send"), format!("{other:?}"), "is not \"accepted\" or \"all\"")),
-                        },
+                        send: r.send,
                         queue_depth: c.int(&rk("queue_depth"), r.queue_depth, 1, 10_000)?,
                         word_order,
                     })
                 }
             };
-            let picking_order = match rc.picking_order.as_str() {
-                "x-ascending" => PickingOrder::XAscending,
-                "x-descending" => PickingOrder::XDescending,
-                "y-ascending" => PickingOrder::YAscending,
-                "y-descending" => PickingOrder::YDescending,
-                "confidence" => PickingOrder::Confidence,
-                other => {
-                    return Err(c.err(
-                        k("picking_order"),
-                        format!("{other:?}"),
-                        "is not one of \"x-ascending\", \"x-descending\", \"y-ascending\", \"y-descending\", \"confidence\"",
-                    ));
-                }
-            };
+            let picking_order = rc.picking_order;
             let archive = match &rc.archive {
                 None => None,
                 Some(a) => {
@@ -791,6 +763,33 @@ mod tests {
             let e = err(&with(bad));
             assert!(e.contains("camera[0].robot.address") && e.contains(bad) && e.contains(says), "{bad}: {e}");
         }
+    }
+
+    #[test]
+    fn a_word_that_names_a_choice_is_one_of_its_spellings() {
+        let c = Config::from_toml(
+            &MIN.replace(
+                "unit_id = 1",
+                "unit_id = 1\ntrigger = \"free-run\"\nfloat_word_order = \"low-first\"\npicking_order = \"confidence\"",
+            ),
+            Path::new("x.toml"),
+        )
+        .unwrap();
+        let cam = &c.cameras[0];
+        assert_eq!((cam.trigger, cam.word_order, cam.picking_order), (Trigger::FreeRun, WordOrder::LowFirst, PickingOrder::Confidence));
+        let c = Config::from_toml(MIN, Path::new("x.toml")).unwrap();
+        assert_eq!(
+            (c.cameras[0].trigger, c.cameras[0].word_order, c.cameras[0].picking_order),
+            (Trigger::Modbus, WordOrder::HighFirst, PickingOrder::XDescending)
+        );
+        for (key, bad, one_of) in
+            [("trigger", "sometimes", "free-run"), ("float_word_order", "middle", "low-first"), ("picking_order", "random", "y-descending")]
+        {
+            let e = err(&MIN.replace("unit_id = 1", &format!("unit_id = 1\n{key} = \"{bad}\"")));
+            assert!(e.contains(bad) && e.contains(one_of) && e.contains("line 3"), "{key}: {e}");
+        }
+        let e = err(&format!("{MIN}[camera.robot]\naddress = \"r:502\"\nsend = \"some\"\n"));
+        assert!(e.contains("some") && e.contains("accepted"), "{e}");
     }
 
     #[test]

@@ -63,8 +63,10 @@ pub enum Command {
 }
 
 /// Order of a frame's parts in the result queue: accepted parts first (after the
-/// expected-type rule), each group in this order.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// expected-type rule), each group in this order. Spelt in the configuration `"x-ascending"`,
+/// `"x-descending"`, `"y-ascending"`, `"y-descending"`, `"confidence"`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum PickingOrder {
     #[default]
     XAscending,

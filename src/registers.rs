@@ -397,8 +397,10 @@ pub fn robot_bits(configured: bool, connected: bool, waiting: bool, timed_out: b
     b
 }
 
-/// Order of the two words of a float32 or uint32 (per camera: `float_word_order`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// Order of the two words of a float32 or uint32 (per camera: `float_word_order`, spelt
+/// `"high-first"` or `"low-first"`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum WordOrder {
     #[default]
     HighFirst,
