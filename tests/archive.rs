@@ -30,6 +30,11 @@ fn sidecars(dir: &Path) -> (BTreeMap<u16, serde_json::Value>, usize) {
     (out, images)
 }
 
+/// Whether the history shows the sixth frame yet.
+fn counters_saved_at_least(list: &[serde_json::Value]) -> bool {
+    list.first().is_some_and(|v| v["acq_id"] == 6)
+}
+
 /// Six cycles with USER_DATA set: the PLC's view of each, by ACQ_ID (each result's block).
 async fn six_cycles(cfg: &lfi_bridge::config::Config) -> (BTreeMap<u16, Vec<Vec<u16>>>, lfi_bridge::appliance::Running) {
     let app = start(cfg).await;
@@ -50,7 +55,32 @@ async fn the_archive_keeps_to_max_files_newest_frames_with_their_results() {
     let dir = tempfile::tempdir().unwrap();
     let extra = format!("[camera.archive]\ndir = {:?}\nsave = \"all\"\nmax_files = 3\n", dir.path().join("frames"));
     let (seen, app) = six_cycles(&config("", &extra)).await;
-    let counters = app.cameras[0].archive.clone().expect("an archive is configured");
+    let counters = app.cameras[0].archive.clone().expect("an archive is configured").counters;
+    // The operator view reads the archive back: the newest frames first, each image by the
+    // name its sidecar gives, and nothing but the archive's own files.
+    let h = app.http_addr.expect("http enabled");
+    let history = tokio::task::spawn_blocking(move || {
+        let get = |path: &str| common::http::http(h, "GET", path, &[], "");
+        // The writer may still be at the last frame: wait for three sidecars.
+        let until = std::time::Instant::now() + std::time::Duration::from_secs(10);
+        let list = loop {
+            let (st, ct, body) = get("/api/camera/1/archive?limit=2");
+            assert_eq!((st, ct.as_str()), (200, "application/json"));
+            let list: Vec<serde_json::Value> = serde_json::from_slice(&body).unwrap();
+            if counters_saved_at_least(&list) || std::time::Instant::now() > until {
+                break list;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        };
+        let image = list[0]["image"].as_str().unwrap().to_string();
+        let (st, ct, png) = get(&format!("/api/camera/1/archive/{image}"));
+        assert_eq!((st, ct.as_str(), &png[1..4]), (200, "image/png", &b"PNG"[..]));
+        assert_eq!(get("/api/camera/1/archive/..%2Ftest.toml").0, 404);
+        assert_eq!(get("/api/camera/1/archive/notes.txt").0, 404);
+        list.iter().map(|v| v["acq_id"].as_u64().unwrap() as u16).collect::<Vec<_>>()
+    })
+    .await
+    .unwrap();
     app.stop().await; // the writer finishes what was queued
     assert_eq!(seen.len(), 6);
     assert_eq!(counters.saved.load(Relaxed), 6);
@@ -59,6 +89,7 @@ async fn the_archive_keeps_to_max_files_newest_frames_with_their_results() {
     let (kept, images) = sidecars(&dir.path().join("frames"));
     assert_eq!((kept.len(), images), (3, 3), "max_files = 3 frames, each an image and a sidecar");
     let newest: Vec<u16> = seen.keys().rev().take(3).rev().copied().collect();
+    assert_eq!(history, seen.keys().rev().take(2).copied().collect::<Vec<_>>(), "the page's history: newest first");
     assert_eq!(kept.keys().copied().collect::<Vec<_>>(), newest, "the oldest frames were deleted first");
     for (acq, v) in &kept {
         let plc = &seen[acq];

@@ -44,6 +44,42 @@ pub struct Item {
     pub sidecar: String,
 }
 
+/// Where a camera's archive is, for reading it back (the operator view's history).
+#[derive(Debug, Clone)]
+pub struct Shelf {
+    pub dir: PathBuf,
+    pub unit_id: u8,
+    pub counters: Arc<Counters>,
+}
+
+impl Shelf {
+    /// The newest `limit` sidecars, newest first, as the JSON they hold (a sidecar that cannot
+    /// be read or parsed is skipped: it may be being deleted).
+    pub fn recent(&self, limit: usize) -> std::io::Result<Vec<serde_json::Value>> {
+        let mut stems: Vec<String> = std::fs::read_dir(&self.dir)?
+            .filter_map(|e| e.ok())
+            .filter_map(|e| {
+                let name = e.file_name().to_string_lossy().into_owned();
+                ours(&name, self.unit_id).filter(|(_, ext)| *ext == "json").map(|(stem, _)| stem.to_string())
+            })
+            .collect();
+        stems.sort_unstable_by(|a, b| b.cmp(a));
+        Ok(stems
+            .iter()
+            .take(limit)
+            .filter_map(|s| std::fs::read(self.dir.join(format!("{s}.json"))).ok())
+            .filter_map(|b| serde_json::from_slice(&b).ok())
+            .collect())
+    }
+
+    /// One archived file by name: only files this camera's archive wrote (anything else,
+    /// a path included, is None).
+    pub fn file(&self, name: &str) -> Option<Vec<u8>> {
+        ours(name, self.unit_id)?;
+        std::fs::read(self.dir.join(name)).ok()
+    }
+}
+
 /// A camera's archive: the queue into its writer thread.
 pub struct Archive {
     save: ArchiveSave,
@@ -51,6 +87,7 @@ pub struct Archive {
     pub counters: Arc<Counters>,
     camera: String,
     unit_id: u8,
+    dir: PathBuf,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
@@ -93,7 +130,15 @@ impl Archive {
         let counters = Arc::new(Counters::default());
         let (c, name) = (counters.clone(), camera.to_string());
         let thread = std::thread::Builder::new().name(format!("archive-{unit_id}")).spawn(move || write_all(store, rx, &c, &name))?;
-        Ok(Some(Self { save: cfg.save, tx: Some(tx), counters, camera: camera.to_string(), unit_id, thread: Some(thread) }))
+        Ok(Some(Self {
+            save: cfg.save,
+            tx: Some(tx),
+            counters,
+            camera: camera.to_string(),
+            unit_id,
+            dir: cfg.dir.clone(),
+            thread: Some(thread),
+        }))
     }
 
     /// Whether a frame with these final results is to be kept: `all` every frame, `rejects`
@@ -104,6 +149,11 @@ impl Archive {
 
     pub fn unit_id(&self) -> u8 {
         self.unit_id
+    }
+
+    /// What the operator view needs to read the archive back.
+    pub fn shelf(&self) -> Shelf {
+        Shelf { dir: self.dir.clone(), unit_id: self.unit_id, counters: self.counters.clone() }
     }
 
     /// Hands a frame to the writer without waiting: when the queue is full it is dropped and
@@ -270,6 +320,24 @@ mod tests {
     }
 
     #[test]
+    fn the_shelf_reads_back_the_newest_and_only_the_archive_s_own_files() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("secret.txt"), "not yours").unwrap();
+        let mut s = Store::open(dir.path(), 2, 10, u64::MAX).unwrap();
+        for k in 1..=4u16 {
+            s.put(&item(1_000 + k as u64, k)).unwrap();
+        }
+        let shelf = Shelf { dir: dir.path().to_path_buf(), unit_id: 2, counters: Arc::default() };
+        let acq: Vec<u64> = shelf.recent(3).unwrap().iter().map(|v| v["acq_id"].as_u64().unwrap()).collect();
+        assert_eq!(acq, [4, 3, 2], "newest first");
+        let png = shelf.file(&format!("{}.png", stem(1_004, 2, 4))).unwrap();
+        assert_eq!(&png[1..4], b"PNG");
+        for bad in ["secret.txt", "../secret.txt", "/etc/passwd", &format!("{}.png", stem(1_004, 3, 4))] {
+            assert!(shelf.file(bad).is_none(), "{bad}");
+        }
+    }
+
+    #[test]
     fn keeps_to_max_bytes() {
         let dir = tempfile::tempdir().unwrap();
         let mut s = Store::open(dir.path(), 2, 1000, u64::MAX).unwrap();
@@ -288,7 +356,15 @@ mod tests {
     #[test]
     fn a_full_queue_drops_and_counts_without_waiting() {
         let (tx, rx) = std::sync::mpsc::sync_channel(2);
-        let a = Archive { save: ArchiveSave::All, tx: Some(tx), counters: Arc::default(), camera: "cam".into(), unit_id: 2, thread: None };
+        let a = Archive {
+            save: ArchiveSave::All,
+            tx: Some(tx),
+            counters: Arc::default(),
+            camera: "cam".into(),
+            unit_id: 2,
+            dir: PathBuf::from("unused"),
+            thread: None,
+        };
         let t = std::time::Instant::now();
         for k in 0..5 {
             a.offer(item(k, k as u16));

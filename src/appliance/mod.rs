@@ -56,8 +56,8 @@ pub struct CameraHandle {
     pub templates: Arc<Mutex<KnowledgeBase>>,
     pub params: Params,
     pub robot: Option<Arc<Mutex<crate::registers::RobotView>>>,
-    /// The image archive's counters, if one is configured.
-    pub archive: Option<Arc<archive::Counters>>,
+    /// The image archive (its counters, and where to read it back), if one is configured.
+    pub archive: Option<archive::Shelf>,
     thread: Mutex<Option<std::thread::JoinHandle<()>>>,
 }
 
@@ -174,7 +174,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             })?,
             None => None,
         };
-        let archive_counters = archive.as_ref().map(|a| a.counters.clone());
+        let shelf = archive.as_ref().map(archive::Archive::shelf);
         let worker = Worker {
             name: cam.name.clone(),
             trigger: cam.trigger,
@@ -204,7 +204,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             templates: Arc::new(Mutex::new(entries)),
             params: params.clone(),
             robot: robot_view,
-            archive: archive_counters,
+            archive: shelf,
             thread: Mutex::new(Some(thread)),
         });
     }

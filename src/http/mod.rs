@@ -170,6 +170,8 @@ pub fn router(state: AppState) -> Router {
         .route("/api/camera/{unit}/templates", get(templates))
         .route("/api/camera/{unit}/template/{index}", get(template_png))
         .route("/api/camera/{unit}/enroll", post(enroll))
+        .route("/api/camera/{unit}/archive", get(archive_list))
+        .route("/api/camera/{unit}/archive/{file}", get(archive_file))
         .with_state(state)
 }
 
@@ -279,7 +281,7 @@ async fn metrics(State(state): State<AppState>) -> Response {
                     }
                 }
                 "lfi_archive_saved_total" | "lfi_archive_dropped_total" | "lfi_archive_failed_total" | "lfi_archive_deleted_total" => {
-                    if let Some(a) = &c.archive {
+                    if let Some(a) = c.archive.as_ref().map(|s| &s.counters) {
                         let v = match name {
                             "lfi_archive_saved_total" => &a.saved,
                             "lfi_archive_dropped_total" => &a.dropped,
@@ -549,6 +551,40 @@ async fn templates(State(state): State<AppState>, Path(unit): Path<u8>) -> Resul
         })
         .collect();
     Ok(axum::Json(list).into_response())
+}
+
+#[derive(Deserialize)]
+struct ArchiveQuery {
+    /// Sidecars returned at most (default 20, at most 200).
+    limit: Option<usize>,
+}
+
+/// The image archive's newest frames, newest first: each sidecar as written (its `image` is
+/// served by [`archive_file`]).
+async fn archive_list(
+    State(state): State<AppState>,
+    Path(unit): Path<u8>,
+    axum::extract::Query(q): axum::extract::Query<ArchiveQuery>,
+) -> Result<Response, Failure> {
+    let shelf = camera(&state, unit)?.archive.clone().ok_or((StatusCode::NOT_FOUND, format!("camera {unit} keeps no archive")))?;
+    let limit = q.limit.unwrap_or(20).clamp(1, 200);
+    let list = tokio::task::spawn_blocking(move || shelf.recent(limit))
+        .await
+        .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+        .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, format!("cannot read the archive: {e}")))?;
+    Ok(axum::Json(list).into_response())
+}
+
+/// One archived image or sidecar, by the name its sidecar gives.
+async fn archive_file(State(state): State<AppState>, Path((unit, file)): Path<(u8, String)>) -> Result<Response, Failure> {
+    let shelf = camera(&state, unit)?.archive.clone().ok_or((StatusCode::NOT_FOUND, format!("camera {unit} keeps no archive")))?;
+    let kind = if file.ends_with(".png") { "image/png" } else { "application/json" };
+    let name = file.clone();
+    let bytes = tokio::task::spawn_blocking(move || shelf.file(&name))
+        .await
+        .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+        .ok_or((StatusCode::NOT_FOUND, format!("no archived file {file:?}")))?;
+    Ok(([(header::CONTENT_TYPE, kind)], bytes).into_response())
 }
 
 /// A thumbnail of a template (see [`crate::overlay::thumbnail`]).
