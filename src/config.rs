@@ -182,6 +182,33 @@ pub mod raw {
         pub picking_order: super::PickingOrder,
         #[serde(default)]
         pub archive: Option<Archive>,
+        #[serde(default)]
+        pub start_job: Option<i64>,
+        #[serde(default)]
+        pub job: Vec<Job>,
+    }
+
+    /// `[[camera.job]]`: what a job changes from the camera's own keys.
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct Job {
+        pub id: i64,
+        #[serde(default)]
+        pub name: Option<String>,
+        #[serde(default)]
+        pub kb: Option<String>,
+        #[serde(default)]
+        pub kb_from_simulator: bool,
+        #[serde(default)]
+        pub expected_type: Option<i64>,
+        #[serde(default)]
+        pub accept_threshold: Option<f64>,
+        #[serde(default)]
+        pub roi: Option<Vec<i64>>,
+        #[serde(default)]
+        pub mm_per_px: Option<f64>,
+        #[serde(default)]
+        pub calibration: Option<Calibration>,
     }
 
     #[derive(Debug, Deserialize)]
@@ -316,6 +343,31 @@ pub enum KbSource {
     Simulator,
 }
 
+/// One job: a camera's knowledge base, expected type, accept threshold, ROI and calibration,
+/// each the job's own or the camera's.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobConfig {
+    /// 1..=999, as the PLC writes it to JOB_REQUEST.
+    pub id: u16,
+    pub name: String,
+    pub kb: KbSource,
+    /// Written into EXPECTED_TYPE when the job comes into force (None: left as it is).
+    pub expected_type: Option<u16>,
+    pub accept_threshold: f64,
+    pub roi: Option<[usize; 4]>,
+    pub calibration: CalibrationConfig,
+}
+
+impl CameraConfig {
+    pub fn job(&self, id: u16) -> Option<&JobConfig> {
+        self.jobs.iter().find(|j| j.id == id)
+    }
+    /// The job in force at start-up.
+    pub fn start(&self) -> &JobConfig {
+        self.job(self.start_job).unwrap_or(&self.jobs[0])
+    }
+}
+
 /// Which frames the image archive keeps.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -369,9 +421,11 @@ pub struct CameraConfig {
     pub source: SourceConfig,
     pub trigger: Trigger,
     pub online: bool,
-    pub kb: KbSource,
-    pub roi: Option<[usize; 4]>,
-    pub calibration: CalibrationConfig,
+    /// What the camera can be switched between (JOB_REQUEST); a camera without
+    /// `[[camera.job]]` tables has one, job 1, of its own keys.
+    pub jobs: Vec<JobConfig>,
+    /// The job in force at start-up.
+    pub start_job: u16,
     pub word_order: WordOrder,
     pub robot: Option<RobotConfig>,
     pub picking_order: PickingOrder,
@@ -555,60 +609,52 @@ impl Config {
                 other => return Err(c.err(k("source.kind"), format!("{other:?}"), "is not one of \"sim\", \"dir\", \"video\"")),
             };
             let trigger = rc.trigger;
-            let kb = match (&rc.kb, rc.kb_from_simulator) {
-                (Some(_), true) => return Err(c.err(k("kb_from_simulator"), true, "cannot be combined with kb")),
-                (Some(p), false) => KbSource::File(base.join(p)),
-                (None, true) => {
-                    if !matches!(source, SourceConfig::Sim { .. }) {
-                        return Err(c.err(k("kb_from_simulator"), true, "needs source.kind = \"sim\""));
-                    }
-                    KbSource::Simulator
+            let kb = kb_source(&c, &k, rc.kb.as_deref(), rc.kb_from_simulator, &source, base)?;
+            let roi = roi_of(&c, &k, rc.roi.as_deref(), &source)?;
+            let calibration =
+                calibration_of(&c, &k, rc.calibration.as_ref(), rc.mm_per_px)?.unwrap_or(CalibrationConfig::Scale { mm_per_px: 1.0 });
+            let mut jobs: Vec<JobConfig> = Vec::new();
+            for (j, rj) in rc.job.iter().enumerate() {
+                let jk = |f: &str| k(&format!("job[{j}].{f}"));
+                let id: u16 = c.int(&jk("id"), rj.id, 1, 999)?;
+                if jobs.iter().any(|o| o.id == id) {
+                    return Err(c.err(jk("id"), id, "is used by another job of this camera"));
                 }
-                (None, false) => return Err(c.err(k("kb"), "(missing)", "is required (or kb_from_simulator = true with a sim source)")),
-            };
-            let roi = match &rc.roi {
-                None => None,
+                let kb = match kb_source(&c, &|f| jk(f), rj.kb.as_deref(), rj.kb_from_simulator, &source, base)? {
+                    Some(kb) => kb,
+                    None => kb
+                        .clone()
+                        .ok_or_else(|| c.err(jk("kb"), "(missing)", "is required: the camera has no kb for its jobs to start from"))?,
+                };
+                jobs.push(JobConfig {
+                    id,
+                    name: rj.name.clone().unwrap_or_else(|| format!("job {id}")),
+                    kb,
+                    expected_type: rj.expected_type.map(|t| c.int(&jk("expected_type"), t, 0, 65535)).transpose()?,
+                    accept_threshold: rj
+                        .accept_threshold
+                        .map(|t| c.real(&jk("accept_threshold"), t, 0.0, 1.0))
+                        .transpose()?
+                        .unwrap_or(accept_threshold),
+                    roi: roi_of(&c, &|f| jk(f), rj.roi.as_deref(), &source)?.or(roi),
+                    calibration: calibration_of(&c, &|f| jk(f), rj.calibration.as_ref(), rj.mm_per_px)?
+                        .unwrap_or_else(|| calibration.clone()),
+                });
+            }
+            if jobs.is_empty() {
+                let kb = kb.ok_or_else(|| c.err(k("kb"), "(missing)", "is required (or kb_from_simulator = true with a sim source)"))?;
+                jobs.push(JobConfig { id: 1, name: "job 1".into(), kb, expected_type: None, accept_threshold, roi, calibration });
+            }
+            let start_job = match rc.start_job {
                 Some(v) => {
-                    if v.len() != 4 || v.iter().any(|&x| x < 0) || v[2] < 32 || v[3] < 32 {
-                        return Err(c.err(k("roi"), format!("{v:?}"), "must be [x, y, width, height] with width and height >= 32"));
+                    let id: u16 = c.int(&k("start_job"), v, 1, 999)?;
+                    if !jobs.iter().any(|j| j.id == id) {
+                        let ids: Vec<String> = jobs.iter().map(|j| j.id.to_string()).collect();
+                        return Err(c.err(k("start_job"), id, format!("is not a configured job (jobs: {})", ids.join(", "))));
                     }
-                    let roi = [v[0] as usize, v[1] as usize, v[2] as usize, v[3] as usize];
-                    // A simulated camera's frame size is known now; a real one's only at the
-                    // first frame (a misfit there is a frame error naming the ROI and the frame).
-                    if let SourceConfig::Sim { width, height, .. } = &source
-                        && (roi[0].saturating_add(roi[2]) > *width || roi[1].saturating_add(roi[3]) > *height)
-                    {
-                        return Err(c.err(k("roi"), format!("{v:?}"), format!("reaches past the simulated {width} x {height} frame")));
-                    }
-                    Some(roi)
+                    id
                 }
-            };
-            let calibration = match (&rc.calibration, rc.mm_per_px) {
-                (Some(_), Some(_)) => {
-                    return Err(c.err(k("mm_per_px"), rc.mm_per_px.unwrap_or(0.0), "cannot be combined with [camera.calibration]"));
-                }
-                (Some(cal), None) => {
-                    if cal.points.len() < 4 {
-                        return Err(c.err(
-                            k("calibration.points"),
-                            format!("{} pairs", cal.points.len()),
-                            "needs at least 4 [x_px, y_px, x_mm, y_mm] pairs",
-                        ));
-                    }
-                    let mut pts = Vec::new();
-                    for (j, p) in cal.points.iter().enumerate() {
-                        if p.len() != 4 || p.iter().any(|v| !v.is_finite()) {
-                            return Err(c.err(
-                                k(&format!("calibration.points[{j}]")),
-                                format!("{p:?}"),
-                                "must be [x_px, y_px, x_mm, y_mm]",
-                            ));
-                        }
-                        pts.push([p[0], p[1], p[2], p[3]]);
-                    }
-                    CalibrationConfig::Points(pts)
-                }
-                (None, s) => CalibrationConfig::Scale { mm_per_px: c.real(&k("mm_per_px"), s.unwrap_or(1.0), 1e-6, 1e6)? },
+                None => jobs.iter().map(|j| j.id).min().unwrap_or(1),
             };
             let word_order = rc.float_word_order;
             let robot = match &rc.robot {
@@ -656,9 +702,8 @@ impl Config {
                 source,
                 trigger,
                 online: rc.online,
-                kb,
-                roi,
-                calibration,
+                jobs,
+                start_job,
                 word_order,
                 robot,
                 picking_order,
@@ -667,6 +712,77 @@ impl Config {
         }
         Ok(Config { path: path.to_path_buf(), modbus, queue_depth, accept_threshold, log_level: raw.log.level.clone(), http, cameras })
     }
+}
+
+/// A knowledge base from `kb` (a file, relative to the configuration's folder) or
+/// `kb_from_simulator` (a simulated camera's own templates); None when neither is given.
+fn kb_source(
+    c: &Check<'_>,
+    k: &dyn Fn(&str) -> String,
+    kb: Option<&str>,
+    from_simulator: bool,
+    source: &SourceConfig,
+    base: &Path,
+) -> Result<Option<KbSource>, ConfigError> {
+    Ok(match (kb, from_simulator) {
+        (Some(_), true) => return Err(c.err(k("kb_from_simulator"), true, "cannot be combined with kb")),
+        (Some(p), false) => Some(KbSource::File(base.join(p))),
+        (None, true) => {
+            if !matches!(source, SourceConfig::Sim { .. }) {
+                return Err(c.err(k("kb_from_simulator"), true, "needs source.kind = \"sim\""));
+            }
+            Some(KbSource::Simulator)
+        }
+        (None, false) => None,
+    })
+}
+
+/// A region of interest `[x, y, width, height]`; a simulated camera's must fit its frame.
+fn roi_of(c: &Check<'_>, k: &dyn Fn(&str) -> String, v: Option<&[i64]>, source: &SourceConfig) -> Result<Option<[usize; 4]>, ConfigError> {
+    let Some(v) = v else { return Ok(None) };
+    if v.len() != 4 || v.iter().any(|&x| x < 0) || v[2] < 32 || v[3] < 32 {
+        return Err(c.err(k("roi"), format!("{v:?}"), "must be [x, y, width, height] with width and height >= 32"));
+    }
+    let roi = [v[0] as usize, v[1] as usize, v[2] as usize, v[3] as usize];
+    // A simulated camera's frame size is known now; a real one's only at the first frame (a
+    // misfit there is a frame error naming the ROI and the frame).
+    if let SourceConfig::Sim { width, height, .. } = source
+        && (roi[0].saturating_add(roi[2]) > *width || roi[1].saturating_add(roi[3]) > *height)
+    {
+        return Err(c.err(k("roi"), format!("{v:?}"), format!("reaches past the simulated {width} x {height} frame")));
+    }
+    Ok(Some(roi))
+}
+
+/// `mm_per_px` or a `calibration` table of point pairs; None when neither is given.
+fn calibration_of(
+    c: &Check<'_>,
+    k: &dyn Fn(&str) -> String,
+    cal: Option<&raw::Calibration>,
+    mm_per_px: Option<f64>,
+) -> Result<Option<CalibrationConfig>, ConfigError> {
+    Ok(match (cal, mm_per_px) {
+        (Some(_), Some(v)) => return Err(c.err(k("mm_per_px"), v, format!("cannot be combined with [{}]", k("calibration")))),
+        (Some(cal), None) => {
+            if cal.points.len() < 4 {
+                return Err(c.err(
+                    k("calibration.points"),
+                    format!("{} pairs", cal.points.len()),
+                    "needs at least 4 [x_px, y_px, x_mm, y_mm] pairs",
+                ));
+            }
+            let mut pts = Vec::new();
+            for (j, p) in cal.points.iter().enumerate() {
+                if p.len() != 4 || p.iter().any(|v| !v.is_finite()) {
+                    return Err(c.err(k(&format!("calibration.points[{j}]")), format!("{p:?}"), "must be [x_px, y_px, x_mm, y_mm]"));
+                }
+                pts.push([p[0], p[1], p[2], p[3]]);
+            }
+            Some(CalibrationConfig::Points(pts))
+        }
+        (None, Some(s)) => Some(CalibrationConfig::Scale { mm_per_px: c.real(&k("mm_per_px"), s, 1e-6, 1e6)? }),
+        (None, None) => None,
+    })
 }
 
 /// A robot controller's address as the link dials it: `host:port` (a name or an IPv4 address)
@@ -719,7 +835,7 @@ mod tests {
         }
         let demo = Config::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("config/demo.toml")).unwrap();
         assert_eq!(demo.modbus.bind.to_string(), "127.0.0.1:1502");
-        assert_eq!(demo.cameras[0].kb, KbSource::Simulator);
+        assert_eq!(demo.cameras[0].start().kb, KbSource::Simulator);
         assert_eq!(demo.cameras[0].trigger, Trigger::Modbus);
         assert_eq!(demo.queue_depth, 8);
     }
@@ -790,6 +906,41 @@ mod tests {
         }
         let e = err(&format!("{MIN}[camera.robot]\naddress = \"r:502\"\nsend = \"some\"\n"));
         assert!(e.contains("some") && e.contains("accepted"), "{e}");
+    }
+
+    #[test]
+    fn jobs_start_from_the_camera_s_keys_and_change_what_they_name() {
+        // Without jobs: job 1, of the camera's own keys.
+        let c = Config::from_toml(MIN, Path::new("x.toml")).unwrap();
+        let cam = &c.cameras[0];
+        assert_eq!((cam.jobs.len(), cam.start_job, cam.start().id, cam.start().kb.clone()), (1, 1, 1, KbSource::Simulator));
+        let text = MIN.replace("kb_from_simulator = true", "kb = \"base.toml\"\nmm_per_px = 0.2\nroi = [0, 0, 640, 480]\nstart_job = 7")
+            + "[[camera.job]]\nid = 3\n[[camera.job]]\nid = 7\nname = \"big\"\nkb = \"big.toml\"\nexpected_type = 4\naccept_threshold = 0.7\nmm_per_px = 0.4\n";
+        let c = Config::from_toml(&text, Path::new("/etc/lfi/x.toml")).unwrap();
+        let cam = &c.cameras[0];
+        let (j3, j7) = (cam.job(3).unwrap(), cam.job(7).unwrap());
+        assert_eq!(cam.start().id, 7);
+        assert_eq!(j3.kb, KbSource::File("/etc/lfi/base.toml".into()), "a job starts from the camera's kb");
+        assert_eq!((j3.name.as_str(), j3.expected_type, j3.accept_threshold, j3.roi), ("job 3", None, 0.5, Some([0, 0, 640, 480])));
+        assert_eq!(j3.calibration, CalibrationConfig::Scale { mm_per_px: 0.2 });
+        assert_eq!(j7.kb, KbSource::File("/etc/lfi/big.toml".into()));
+        assert_eq!((j7.name.as_str(), j7.expected_type, j7.accept_threshold), ("big", Some(4), 0.7));
+        assert_eq!(j7.calibration, CalibrationConfig::Scale { mm_per_px: 0.4 });
+        // Without start_job, the lowest id.
+        let c = Config::from_toml(&text.replace("start_job = 7", ""), Path::new("x.toml")).unwrap();
+        assert_eq!(c.cameras[0].start().id, 3);
+        for (bad, says) in [
+            (text.replace("id = 3", "id = 1000"), "camera[0].job[0].id = 1000"),
+            (text.replace("id = 3", "id = 7"), "camera[0].job[1].id = 7 is used by another job"),
+            (text.replace("start_job = 7", "start_job = 8"), "camera[0].start_job = 8 is not a configured job (jobs: 3, 7)"),
+            (text.replace("expected_type = 4", "expected_type = -1"), "camera[0].job[1].expected_type = -1"),
+            (text.replace("accept_threshold = 0.7", "accept_threshold = 1.5"), "camera[0].job[1].accept_threshold = 1.5"),
+            (text.replace("kb = \"base.toml\"\n", ""), "camera[0].job[0].kb = (missing) is required"),
+            (text.replace("name = \"big\"", "colour = 1"), "colour"),
+        ] {
+            let e = err(&bad);
+            assert!(e.contains(says), "{says}: {e}");
+        }
     }
 
     #[test]

@@ -8,8 +8,8 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
-pub use crate::registers::WordOrder;
 use crate::registers::{self as map, RobotView, addr, error_code, i16_word, status, u16_word, u32_from_words, u32_words};
+pub use crate::registers::{WordOrder, job_status};
 use crate::vision::Reason;
 
 /// One part's result as the PLC sees it, in the robot frame.
@@ -60,6 +60,17 @@ impl Fault {
 pub enum Command {
     /// Take a frame and report it with [`Handshake::complete`] under this acquisition id.
     Acquire { acq_id: u16 },
+    /// Load job `id` and report with [`Handshake::job_changed`].
+    ChangeJob { id: u16 },
+}
+
+/// How a job change ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum JobOutcome {
+    /// The job is in force; its expected type (if it has one) goes into EXPECTED_TYPE.
+    InForce { expected_type: Option<u16> },
+    /// Not configured, or its knowledge base would not load: the job in force stays.
+    Failed,
 }
 
 /// Order of a frame's parts in the result queue: accepted parts first (after the
@@ -132,6 +143,8 @@ pub struct Settings {
     pub picking_order: PickingOrder,
     /// BOOT_ID: drawn by the appliance at start (non-zero), the same for every camera.
     pub boot_id: u16,
+    /// The job in force at start-up (JOB_ID).
+    pub job_id: u16,
 }
 
 /// One camera's registers and result queue.
@@ -160,6 +173,12 @@ pub struct Handshake {
     /// Debris pieces in the last estimated frame.
     debris: u16,
     next_seq: u16,
+    /// JOB_REQUEST as last written (0 before any), the job in force, JOB_STATUS, and how many
+    /// requested changes have not been reported yet.
+    job_request: u16,
+    job_id: u16,
+    job_status: u16,
+    jobs_pending: u16,
     queue: VecDeque<Queued>,
     robot: RobotView,
     counters: Counters,
@@ -176,6 +195,7 @@ pub fn angle_word(deg: f64) -> u16 {
 
 impl Handshake {
     pub fn new(settings: Settings) -> Self {
+        let job_id = settings.job_id;
         Self {
             online: settings.online,
             settings,
@@ -197,18 +217,45 @@ impl Handshake {
             last_cycle: 0,
             debris: 0,
             next_seq: 1,
+            job_request: 0,
+            job_id,
+            job_status: job_status::IDLE,
+            jobs_pending: 0,
             queue: VecDeque::new(),
             robot: RobotView::default(),
             counters: Counters::default(),
         }
     }
 
-    /// READY = ONLINE and not BUSY and CAMERA_OK and not ERROR (a full queue does not clear
-    /// it): exactly when a TRIGGER edge starts an acquisition, so a PLC that waits for READY
-    /// never triggers into an error it has not cleared, and a free-running camera takes a frame
-    /// only then (its files wait in the inbox meanwhile rather than be consumed unseen).
+    /// READY = ONLINE and not BUSY and CAMERA_OK and not ERROR and no job change running (a
+    /// full queue does not clear it): exactly when a TRIGGER edge starts an acquisition, so a
+    /// PLC that waits for READY never triggers into an error it has not cleared or a knowledge
+    /// base being swapped, and a free-running camera takes a frame only then (its files wait in
+    /// the inbox meanwhile rather than be consumed unseen).
     pub fn ready(&self) -> bool {
-        self.online && self.busy.is_none() && self.camera_ok && !self.error
+        self.online && self.busy.is_none() && self.camera_ok && !self.error && self.jobs_pending == 0
+    }
+
+    /// The job in force (JOB_ID).
+    pub fn job_id(&self) -> u16 {
+        self.job_id
+    }
+
+    /// Reports a job change asked for by [`Command::ChangeJob`]: JOB_STATUS becomes done or
+    /// failed once no other change is waiting; a job in force sets EXPECTED_TYPE if it has one.
+    pub fn job_changed(&mut self, id: u16, outcome: JobOutcome) {
+        self.jobs_pending = self.jobs_pending.saturating_sub(1);
+        let status = match outcome {
+            JobOutcome::InForce { expected_type } => {
+                self.job_id = id;
+                if let Some(t) = expected_type {
+                    self.expected_type = t;
+                }
+                job_status::DONE
+            }
+            JobOutcome::Failed => job_status::FAILED,
+        };
+        self.job_status = if self.jobs_pending > 0 { job_status::CHANGING } else { status };
     }
 
     pub fn status(&self) -> u16 {
@@ -254,6 +301,9 @@ impl Handshake {
             addr::EXPECTED_TYPE => self.expected_type,
             5 | 6 => self.user_data[(a - addr::USER_DATA) as usize],
             addr::BOOT_ID => self.settings.boot_id,
+            addr::JOB_REQUEST => self.job_request,
+            addr::JOB_ID => self.job_id,
+            addr::JOB_STATUS => self.job_status,
             addr::STATUS => self.status(),
             addr::HEARTBEAT => self.heartbeat,
             addr::ERROR_CODE => self.error_code,
@@ -333,16 +383,27 @@ impl Handshake {
     /// A PLC write of consecutive registers (one FC16): every other register takes its value
     /// first and the TRIGGER edge is taken last, so USER_DATA, EXPECTED_TYPE or CLEAR_ERROR
     /// written in the same request as TRIGGER already hold for that acquisition.
+    ///
+    /// A JOB_REQUEST starts a job change ([`Command::ChangeJob`]); a TRIGGER edge in the same
+    /// request then counts as missed (READY is 0 while the change runs), so one request yields
+    /// at most one command.
     pub fn write_block(&mut self, start: u16, values: &[u16], now: Duration) -> Option<Command> {
         let mut trigger = None;
+        let mut job = None;
         for (a, v) in (start..).zip(values) {
-            if a == addr::TRIGGER {
-                trigger = Some(*v);
-            } else {
-                self.write_one(a, *v);
+            match a {
+                addr::TRIGGER => trigger = Some(*v),
+                addr::JOB_REQUEST => {
+                    self.job_request = *v;
+                    self.jobs_pending = self.jobs_pending.saturating_add(1);
+                    self.job_status = job_status::CHANGING;
+                    job = Some(Command::ChangeJob { id: *v });
+                }
+                _ => self.write_one(a, *v),
             }
         }
-        trigger.and_then(|v| self.write_trigger(v, now))
+        let acquire = trigger.and_then(|v| self.write_trigger(v, now));
+        job.or(acquire)
     }
 
     fn write_trigger(&mut self, v: u16, now: Duration) -> Option<Command> {

@@ -44,13 +44,15 @@ pub struct Register {
     pub unit: &'static str,
     /// Values a PLC may write (None: any).
     pub allowed: Option<&'static [u16]>,
+    /// The range a PLC may write, inclusive (None: any).
+    pub range: Option<(u16, u16)>,
     pub doc: &'static str,
 }
 
 /// Highest address of the map plus one; any address at or beyond is exception 0x02.
 pub const SIZE: u16 = 300;
 /// Value of MAP_VERSION: bumped when a PLC program written for the old map would break.
-pub const MAP_VERSION: u16 = 3;
+pub const MAP_VERSION: u16 = 4;
 
 pub mod addr {
     pub const TRIGGER: u16 = 0;
@@ -59,6 +61,7 @@ pub mod addr {
     pub const ONLINE: u16 = 3;
     pub const EXPECTED_TYPE: u16 = 4;
     pub const USER_DATA: u16 = 5;
+    pub const JOB_REQUEST: u16 = 7;
     pub const STATUS: u16 = 100;
     pub const HEARTBEAT: u16 = 101;
     pub const ERROR_CODE: u16 = 102;
@@ -80,6 +83,8 @@ pub mod addr {
     pub const ROBOT_ACK_SEQ: u16 = 118;
     pub const DEBRIS_COUNT: u16 = 119;
     pub const RESULT_ACK_IGNORED: u16 = 120;
+    pub const JOB_ID: u16 = 121;
+    pub const JOB_STATUS: u16 = 122;
     pub const BOOT_ID: u16 = 123;
     pub const RESULT_SEQ: u16 = 200;
     pub const ACQ_ID: u16 = 201;
@@ -126,6 +131,14 @@ pub mod robot_status {
     pub const NAMES: [&str; 6] = ["CONFIGURED", "CONNECTED", "WAITING_ACK", "ACK_TIMEOUT", "ROBOT_READY", "ROBOT_FAULT"];
 }
 
+/// JOB_STATUS (122) values.
+pub mod job_status {
+    pub const IDLE: u16 = 0;
+    pub const CHANGING: u16 = 1;
+    pub const DONE: u16 = 2;
+    pub const FAILED: u16 = 3;
+}
+
 /// ERROR_CODE (102) values.
 pub mod error_code {
     pub const NONE: u16 = 0;
@@ -143,10 +156,10 @@ use Kind::*;
 const BOOL: &[u16] = &[0, 1];
 
 const fn reg(addr: u16, name: &'static str, access: Access, kind: Kind, unit: &'static str, doc: &'static str) -> Register {
-    Register { addr, name, access, kind, unit, allowed: None, doc }
+    Register { addr, name, access, kind, unit, allowed: None, range: None, doc }
 }
 const fn flag(addr: u16, name: &'static str, doc: &'static str) -> Register {
-    Register { addr, name, access: ReadWrite, kind: U16, unit: "0/1", allowed: Some(BOOL), doc }
+    Register { addr, name, access: ReadWrite, kind: U16, unit: "0/1", allowed: Some(BOOL), range: None, doc }
 }
 
 /// Every defined register, in address order. Addresses not listed below SIZE are reserved:
@@ -179,13 +192,23 @@ pub const MAP: &[Register] = &[
         "any",
         "The PLC's value for the next frame (e.g. its conveyor encoder count), latched at the TRIGGER edge (free-run: when the frame is taken) and returned with that frame's results in 219-220 and robot words 8-9. In one FC16 with TRIGGER, the new value is latched (every write of a request lands before the TRIGGER edge is taken).",
     ),
+    Register {
+        addr: addr::JOB_REQUEST,
+        name: "JOB_REQUEST",
+        access: ReadWrite,
+        kind: U16,
+        unit: "job id",
+        allowed: None,
+        range: Some((1, 999)),
+        doc: "Write a job id (1..999; other values are exception 0x03) to switch the camera to that job: its knowledge base is (re)loaded, so writing the id in force again reloads it. JOB_STATUS tells the outcome. Reads back the last request (0 before any).",
+    },
     reg(
         addr::STATUS,
         "STATUS",
         ReadOnly,
         Bits,
         "bits",
-        "b0 READY (ONLINE and not BUSY and CAMERA_OK and not ERROR: a TRIGGER edge now starts an acquisition), b1 TRIGGER_ACK, b2 BUSY, b3 RESULT_VALID, b4 RESULT_OVERRUN, b5 ERROR, b6 ONLINE, b7 CAMERA_OK.",
+        "b0 READY (ONLINE and not BUSY and CAMERA_OK and not ERROR and no job change running: a TRIGGER edge now starts an acquisition), b1 TRIGGER_ACK, b2 BUSY, b3 RESULT_VALID, b4 RESULT_OVERRUN, b5 ERROR, b6 ONLINE, b7 CAMERA_OK.",
     ),
     reg(addr::HEARTBEAT, "HEARTBEAT", ReadOnly, U16, "count", "+1 every second (wraps)."),
     reg(addr::ERROR_CODE, "ERROR_CODE", ReadOnly, U16, "code", "0 none, 1 camera (no frame), 2 frame (unusable), 3 knowledge base."),
@@ -207,7 +230,7 @@ pub const MAP: &[Register] = &[
         "count",
         "Trigger edges while BUSY, offline or in ERROR: nothing started (wraps).",
     ),
-    reg(addr::MAP_VERSION, "MAP_VERSION", ReadOnly, U16, "version", "3 (see \"Changes\" below)."),
+    reg(addr::MAP_VERSION, "MAP_VERSION", ReadOnly, U16, "version", "4 (see \"Changes\" below)."),
     reg(
         addr::LAST_CYCLE_TIME,
         "LAST_CYCLE_TIME",
@@ -256,6 +279,15 @@ pub const MAP: &[Register] = &[
         "Pieces of debris (bolts, washers, chips: material too small to be a part) in the last estimated frame; never part results.",
     ),
     reg(addr::RESULT_ACK_IGNORED, "RESULT_ACK_IGNORED", ReadOnly, U16, "count", "RESULT_ACK writes that named no pending result (wraps)."),
+    reg(addr::JOB_ID, "JOB_ID", ReadOnly, U16, "job id", "The job in force (a camera without configured jobs: 1)."),
+    reg(
+        addr::JOB_STATUS,
+        "JOB_STATUS",
+        ReadOnly,
+        U16,
+        "code",
+        "0 idle (no request yet), 1 changing (READY is 0; triggers count as missed; queued results stay readable), 2 done, 3 failed (the id is not configured or its knowledge base does not load: the job in force stays; the reason is logged and shown on the operator view). 2 and 3 hold until the next request. A job with an expected_type writes it into EXPECTED_TYPE when it comes into force; the PLC may overwrite it afterwards.",
+    ),
     reg(
         addr::BOOT_ID,
         "BOOT_ID",
@@ -309,6 +341,11 @@ pub fn lookup(addr: u16) -> Option<&'static Register> {
     MAP.iter().find(|r| addr >= r.addr && addr < r.addr + r.kind.words())
 }
 
+/// Whether `v` is a value a PLC may write to register `r` (its allowed values and range).
+pub fn value_allowed(r: &Register, v: u16) -> bool {
+    r.allowed.is_none_or(|ok| ok.contains(&v)) && r.range.is_none_or(|(lo, hi)| (lo..=hi).contains(&v))
+}
+
 /// Whether a PLC may write `addr`.
 pub fn writable(addr: u16) -> bool {
     lookup(addr).is_some_and(|r| r.access == Access::ReadWrite)
@@ -360,6 +397,7 @@ pub fn markdown() -> String {
     s.push_str("\nFraming: a request whose MBAP length field claims more bytes than its function's own layout (FC3 and FC6: 5 PDU bytes; FC16: 6 plus its byte count) is cut where the function ends and answered 0x03, so the request behind it is not swallowed. Only one client should drive a camera's handshake (TRIGGER, RESULT_ACK, CLEAR_ERROR): two writers each consume results the other never sees, so set `write_allow` to the line PLC; a write from a second address is logged. A request must be complete within `frame_timeout_s` (3 s) of its first byte and a connection with no complete request for `idle_timeout_s` is closed; when all `max_connections` slots are taken, the connection silent longest (at least 1 s) is closed for the newcomer.\n");
     s.push_str("\n## After a restart\n\nBOOT_ID (123) is drawn anew at every start. A PLC keeps the last value it read; when it differs (or it was 0: the PLC itself restarted), the appliance restarted: results queued before are gone and will not come, RESULT_SEQ, ACQ_COUNT and HEARTBEAT count from the start again, EXPECTED_TYPE and USER_DATA read 0 and ONLINE reads its configured start value. Then: drop any result the PLC was waiting for (the part it belonged to is to be treated as not inspected: re-trigger or reject it), write EXPECTED_TYPE and ONLINE again, and continue the handshake from READY.\n");
     s.push_str("\n## Changes\n\n");
+    s.push_str("MAP_VERSION 4 (from 3): jobs: JOB_REQUEST (7), JOB_ID (121) and JOB_STATUS (122) are new, and READY is also 0 while a job change runs. Every other address and meaning is unchanged: a MAP_VERSION 3 program that never writes JOB_REQUEST sees no difference (JOB_ID reads the start job, JOB_STATUS 0).\n\n");
     s.push_str("MAP_VERSION 3 (from 2): READY is now 0 while ERROR is set (it was 1, and a trigger then was missed: a PLC that waited only for READY triggered into an error); USER_DATA (5-6), BOOT_ID (123) and RESULT_USER_DATA (219-220, the result block now ends at 220) are new; robot input words 8-9 carry USER_DATA. A MAP_VERSION 2 program keeps working: it now waits at READY instead of losing a trigger while ERROR is set, and should clear ERROR (CLEAR_ERROR) when it sees it.\n\n");
     s.push_str("MAP_VERSION 2 (from 1): REASON gains 9 `covered` (another part lies partly on this one: grasping it would drag the one on top) and 10 `no clearance` (the gripper's keep-out footprint around the part holds other material); DEBRIS_COUNT (119) is new. Every other address and meaning is unchanged. A MAP_VERSION 1 program that treats any DECISION 2 as a reject keeps working; one that looks REASON up in a table of nine entries must grow it.\n");
     s
@@ -447,7 +485,8 @@ mod tests {
             assert!(end <= w[1].addr, "{} overlaps {}", w[0].name, w[1].name);
         }
         assert!(MAP.iter().all(|r| r.addr < SIZE));
-        assert!(writable(addr::TRIGGER) && !writable(addr::STATUS) && !writable(7) && !writable(213));
+        assert!(writable(addr::TRIGGER) && !writable(addr::STATUS) && !writable(8) && !writable(213));
+        assert!(writable(addr::JOB_REQUEST) && !writable(addr::JOB_ID) && !writable(addr::JOB_STATUS));
         assert!(writable(5) && writable(6), "both words of USER_DATA");
         assert_eq!(lookup(213).unwrap().name, "ANGLE_F32");
         assert_eq!(lookup(220).unwrap().name, "RESULT_USER_DATA");

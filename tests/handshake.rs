@@ -5,7 +5,7 @@ mod common;
 
 use std::time::Duration;
 
-use lfi_bridge::handshake::{Command, Fault, Handshake, Outcome, PartResult, PickingOrder, Settings, WordOrder};
+use lfi_bridge::handshake::{Command, Fault, Handshake, JobOutcome, Outcome, PartResult, PickingOrder, Settings, WordOrder, job_status};
 use lfi_bridge::registers::{addr, error_code, status};
 use lfi_bridge::vision::Reason;
 
@@ -17,6 +17,7 @@ fn hs(depth: usize) -> Handshake {
         types_enrolled: 3,
         picking_order: PickingOrder::XAscending,
         boot_id: 77,
+        job_id: 1,
     })
 }
 
@@ -36,7 +37,56 @@ fn ms(v: u64) -> Duration {
 fn trigger(h: &mut Handshake, t: u64) -> Option<u16> {
     let c = h.write(addr::TRIGGER, 1, ms(t));
     h.write(addr::TRIGGER, 0, ms(t));
-    c.map(|Command::Acquire { acq_id }| acq_id)
+    c.and_then(|c| match c {
+        Command::Acquire { acq_id } => Some(acq_id),
+        Command::ChangeJob { .. } => None,
+    })
+}
+
+#[test]
+fn a_job_request_changes_the_job_with_ready_down_until_the_camera_reports() {
+    let mut h = hs(8);
+    assert_eq!((h.word(addr::JOB_REQUEST), h.word(addr::JOB_ID), h.word(addr::JOB_STATUS)), (0, 1, job_status::IDLE));
+    assert_eq!(h.write(addr::JOB_REQUEST, 2, ms(0)), Some(Command::ChangeJob { id: 2 }));
+    assert_eq!((h.word(addr::JOB_REQUEST), h.word(addr::JOB_STATUS)), (2, job_status::CHANGING));
+    assert_eq!(h.word(addr::STATUS) & status::READY, 0, "READY is 0 while the change runs");
+    assert_eq!(trigger(&mut h, 1), None, "a trigger meanwhile is missed");
+    assert_eq!(h.word(addr::MISSED_TRIGGERS), 1);
+    h.job_changed(2, JobOutcome::InForce { expected_type: Some(3) });
+    assert_eq!((h.word(addr::JOB_ID), h.word(addr::JOB_STATUS), h.word(addr::EXPECTED_TYPE)), (2, job_status::DONE, 3));
+    assert_ne!(h.word(addr::STATUS) & status::READY, 0);
+    assert_eq!(trigger(&mut h, 2), Some(1));
+    // The PLC may overwrite EXPECTED_TYPE; a job without one leaves it.
+    h.complete(1, Outcome::Parts { parts: vec![], processing_ms: 1.0 }, ms(3));
+    h.write(addr::EXPECTED_TYPE, 0, ms(4));
+    h.write(addr::JOB_REQUEST, 1, ms(5));
+    h.job_changed(1, JobOutcome::InForce { expected_type: None });
+    assert_eq!((h.word(addr::JOB_ID), h.word(addr::EXPECTED_TYPE)), (1, 0));
+}
+
+#[test]
+fn a_failed_job_change_leaves_the_job_in_force_and_says_so_until_the_next_request() {
+    let mut h = hs(8);
+    // Results queued before the change stay readable during it.
+    assert_eq!(trigger(&mut h, 0), Some(1));
+    h.complete(1, Outcome::Parts { parts: vec![part(2, 10.0)], processing_ms: 1.0 }, ms(1));
+    h.write(addr::JOB_REQUEST, 7, ms(2));
+    assert_eq!((h.word(addr::RESULT_SEQ), h.word(addr::TYPE_ID)), (1, 2));
+    h.job_changed(7, JobOutcome::Failed);
+    assert_eq!((h.word(addr::JOB_ID), h.word(addr::JOB_STATUS), h.word(addr::JOB_REQUEST)), (1, job_status::FAILED, 7));
+    assert_ne!(h.word(addr::STATUS) & status::READY, 0, "the camera goes on with the job in force");
+    // Two requests in a row: CHANGING until both are reported, then the last one's outcome.
+    h.write(addr::JOB_REQUEST, 2, ms(3));
+    h.write(addr::JOB_REQUEST, 9, ms(3));
+    h.job_changed(2, JobOutcome::InForce { expected_type: None });
+    assert_eq!((h.word(addr::JOB_ID), h.word(addr::JOB_STATUS)), (2, job_status::CHANGING));
+    assert_eq!(h.word(addr::STATUS) & status::READY, 0);
+    h.job_changed(9, JobOutcome::Failed);
+    assert_eq!((h.word(addr::JOB_ID), h.word(addr::JOB_STATUS)), (2, job_status::FAILED));
+    // JOB_REQUEST and TRIGGER in one FC16: the change starts, the trigger is missed.
+    let missed = h.word(addr::MISSED_TRIGGERS);
+    assert_eq!(h.write_block(addr::TRIGGER, &[1, 0, 0, 1, 0, 0, 0, 3], ms(4)), Some(Command::ChangeJob { id: 3 }));
+    assert_eq!(h.word(addr::MISSED_TRIGGERS), missed + 1);
 }
 
 #[test]
@@ -333,6 +383,7 @@ fn the_debris_count_of_the_frame_is_served_with_its_results() {
         types_enrolled: 3,
         picking_order: PickingOrder::XAscending,
         boot_id: 77,
+        job_id: 1,
     });
     let Some(Command::Acquire { acq_id }) = h.write(addr::TRIGGER, 1, Duration::ZERO) else { panic!("no acquisition") };
     h.set_debris(3);

@@ -344,6 +344,7 @@ fn random_and_mutated_modbus_bytes_never_panic_the_framing_or_the_service() {
         types_enrolled: 3,
         picking_order: PickingOrder::XAscending,
         boot_id: 1,
+        job_id: 1,
     });
     let valid: [&[u8]; 4] = [
         &[0, 1, 0, 0, 0, 6, 1, 0x03, 0, 100, 0, 21],

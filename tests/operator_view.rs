@@ -171,3 +171,47 @@ async fn headless_chromium_shows_the_frame_and_the_registers_the_plc_reads() {
     assert!(shot.exists(), "no screenshot: {}", String::from_utf8_lossy(&out.stderr));
     running.stop().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_shows_the_job_and_changes_it_behind_the_token_as_the_plc_would() {
+    let jobs = "[[camera.job]]\nid = 1\nname = \"any\"\n[[camera.job]]\nid = 2\nname = \"flanges\"\nexpected_type = 2\n";
+    let running = start(&config("", jobs)).await;
+    let h = running.http_addr.unwrap();
+    let call = |method: &'static str, path: &'static str, token: &'static str, body: &'static str| async move {
+        tokio::task::spawn_blocking(move || {
+            let auth = format!("Bearer {token}");
+            let hdrs: Vec<(&str, &str)> = if token.is_empty() { vec![] } else { vec![("Authorization", auth.as_str())] };
+            http(h, method, path, &[&[("Content-Type", "application/json")], hdrs.as_slice()].concat(), body)
+        })
+        .await
+        .unwrap()
+    };
+    let job = || async {
+        let (_, _, body) = call("GET", "/api/state", "", "").await;
+        let v: serde_json::Value = serde_json::from_slice(&body).unwrap();
+        v["cameras"][0]["job"].clone()
+    };
+    let j = job().await;
+    assert_eq!((j["id"].as_u64(), j["name"].as_str(), j["status"].as_str()), (Some(1), Some("any"), Some("idle")));
+    assert_eq!(j["jobs"], serde_json::json!([[1, "any"], [2, "flanges"]]));
+    assert_eq!(call("POST", "/api/camera/1/job", "", r#"{"id": 2}"#).await.0, 401, "no token");
+    assert_eq!(call("POST", "/api/camera/1/job", "test-token-123", r#"{"id": 0}"#).await.0, 400, "the register's rule");
+    let (st, _, resp) = call("POST", "/api/camera/1/job", "test-token-123", r#"{"id": 2}"#).await;
+    assert_eq!(st, 202, "{}", String::from_utf8_lossy(&resp));
+    let until = std::time::Instant::now() + Duration::from_secs(60);
+    while job().await["status"] == "changing" {
+        assert!(std::time::Instant::now() < until, "the change never ended");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    let j = job().await;
+    assert_eq!(
+        (j["id"].as_u64(), j["name"].as_str(), j["status"].as_str(), j["request"].as_u64()),
+        (Some(2), Some("flanges"), Some("done"), Some(2))
+    );
+    // The PLC sees the same change.
+    let mut ctx = plc(running.modbus_addr, 1).await;
+    assert_eq!(read(&mut ctx, addr::JOB_REQUEST, 1).await, [2]);
+    assert_eq!(read(&mut ctx, addr::JOB_ID, 2).await, [2, map::job_status::DONE]);
+    assert_eq!(read(&mut ctx, addr::EXPECTED_TYPE, 1).await, [2]);
+    running.stop().await;
+}

@@ -42,7 +42,7 @@ fn the_map_documents_every_reject_reason_and_the_debris_count() {
         let entry = format!("{} {}", r.code(), r.as_str());
         assert!(reason.doc.contains(&entry), "REASON does not document {entry:?}: {}", reason.doc);
     }
-    assert_eq!(map::MAP_VERSION, 3);
+    assert_eq!(map::MAP_VERSION, 4);
     assert_eq!(map::lookup(119).unwrap().name, "DEBRIS_COUNT");
     let doc = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/register-map.md")).unwrap();
     for needle in [
@@ -52,7 +52,11 @@ fn the_map_documents_every_reject_reason_and_the_debris_count() {
         "| 5-6 | 400006-400007 | USER_DATA | R/W | uint32 (2 words) |",
         "| 123 | 400124 | BOOT_ID | R |",
         "| 219-220 | 400220-400221 | RESULT_USER_DATA | R | uint32 (2 words) |",
-        "MAP_VERSION = 3",
+        "MAP_VERSION = 4",
+        "MAP_VERSION 4 (from 3)",
+        "| 7 | 400008 | JOB_REQUEST | R/W |",
+        "| 121 | 400122 | JOB_ID | R |",
+        "| 122 | 400123 | JOB_STATUS | R |",
         "MAP_VERSION 3 (from 2)",
         "MAP_VERSION 2 (from 1)",
         "## After a restart",
@@ -114,12 +118,20 @@ async fn every_register_reads_and_writes_as_documented() {
     for r in MAP.iter().filter(|r| r.access == Access::ReadOnly) {
         assert_eq!(exception(ctx.write_single_register(r.addr, 0).await).await, ExceptionCode::IllegalDataAddress, "{}", r.name);
     }
-    for a in [7u16, 99, 119, 121, 199, 221, 299] {
+    for a in [8u16, 99, 119, 121, 124, 199, 221, 299] {
         assert_eq!(exception(ctx.write_single_register(a, 0).await).await, ExceptionCode::IllegalDataAddress, "reserved {a}");
     }
     // Values: 0/1 only in TRIGGER, CLEAR_ERROR, ONLINE.
     for a in [addr::TRIGGER, addr::CLEAR_ERROR, addr::ONLINE] {
         assert_eq!(exception(ctx.write_single_register(a, 2).await).await, ExceptionCode::IllegalDataValue);
+    }
+    // JOB_REQUEST: 1..999 only.
+    for v in [0u16, 1000, 65535] {
+        assert_eq!(
+            exception(ctx.write_single_register(addr::JOB_REQUEST, v).await).await,
+            ExceptionCode::IllegalDataValue,
+            "JOB_REQUEST {v}"
+        );
     }
     running.stop().await;
 }
@@ -149,7 +161,7 @@ async fn exceptions_follow_the_specification_order() {
     assert_eq!(exception(ctx.read_holding_registers(176, 125).await).await, ExceptionCode::IllegalDataAddress);
     assert_eq!(exception(ctx.read_holding_registers(300, 1).await).await, ExceptionCode::IllegalDataAddress);
     assert_eq!(exception(ctx.read_holding_registers(65535, 1).await).await, ExceptionCode::IllegalDataAddress);
-    assert_eq!(exception(ctx.write_multiple_registers(5, &[7, 7, 7]).await).await, ExceptionCode::IllegalDataAddress);
+    assert_eq!(exception(ctx.write_multiple_registers(5, &[7, 7, 7, 7]).await).await, ExceptionCode::IllegalDataAddress);
     assert_eq!(exception(ctx.write_single_register(65535, 2).await).await, ExceptionCode::IllegalDataAddress);
     assert_eq!(exception(ctx.write_multiple_registers(0, &[2, 0]).await).await, ExceptionCode::IllegalDataValue);
     assert_eq!(read(&mut ctx, addr::TRIGGER, 1).await[0], 0, "a refused FC16 writes nothing");

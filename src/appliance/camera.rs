@@ -10,11 +10,21 @@ use std::time::{Duration, Instant};
 use super::source::{Source, SourceError};
 use crate::calibration::Calibration;
 use crate::config::Trigger;
-use crate::handshake::{Command, Fault, Handshake, Outcome, PartResult, Queued};
+use crate::handshake::{Command, Fault, Handshake, JobOutcome, Outcome, PartResult, Queued};
 use crate::vision::{Estimator, FrameEstimate, GrayImage, MIN_SIDE, PartEstimate};
 
 /// The estimator a camera uses; replaced whole when the operator enrolls a template.
 pub type SharedEstimator = Arc<std::sync::RwLock<Arc<Estimator>>>;
+
+/// The job in force, shared by the worker (which changes it) and enrolment (which writes into
+/// its knowledge base with its parameters).
+#[derive(Debug, Clone)]
+pub struct InForce {
+    pub id: u16,
+    pub name: String,
+    pub kb: crate::config::KbSource,
+    pub params: crate::vision::Params,
+}
 
 /// What the operator view shows of a camera: the latest frame and estimate, and counters.
 ///
@@ -69,6 +79,13 @@ pub struct Worker {
     pub robot_sends_all: bool,
     /// The image archive, if configured (dropped with the worker: it writes what was queued).
     pub archive: Option<super::archive::Archive>,
+    /// The jobs the PLC may switch between, and what loading one needs.
+    pub jobs: Vec<crate::config::JobConfig>,
+    pub source_config: crate::config::SourceConfig,
+    pub base_params: crate::vision::Params,
+    pub in_force: Arc<Mutex<InForce>>,
+    /// The job in force's templates (the operator view lists them; enrolment adds to them).
+    pub templates: Arc<Mutex<crate::kb::KnowledgeBase>>,
 }
 
 impl Worker {
@@ -82,10 +99,18 @@ impl Worker {
                         let frame = self.source.grab();
                         self.process(acq_id, frame, t);
                     }
+                    Ok(Command::ChangeJob { id }) => self.change_job(id),
                     Err(RecvTimeoutError::Timeout) => self.update_camera_ok(),
                     Err(RecvTimeoutError::Disconnected) => break,
                 },
                 Trigger::FreeRun => {
+                    // A free-running camera gets no acquisitions through the channel, only
+                    // job changes.
+                    while let Ok(cmd) = self.commands.try_recv() {
+                        if let Command::ChangeJob { id } = cmd {
+                            self.change_job(id);
+                        }
+                    }
                     // Take a frame only when it can be used: a folder's files wait in the inbox
                     // while the camera is offline or in ERROR instead of being consumed unseen.
                     let can = self.handshake.lock().unwrap_or_else(|p| p.into_inner()).ready();
@@ -103,12 +128,67 @@ impl Worker {
                     let acq = self.handshake.lock().unwrap_or_else(|p| p.into_inner()).free_run(self.started.elapsed());
                     match acq {
                         Some(Command::Acquire { acq_id }) => self.process(acq_id, frame, t),
-                        None => tracing::debug!(camera = %self.name, "frame skipped: not ready (offline, busy or in error)"),
+                        _ => tracing::debug!(camera = %self.name, "frame skipped: not ready (offline, busy or in error)"),
                     }
                 }
             }
         }
         tracing::info!(camera = %self.name, "camera worker stopped");
+    }
+
+    /// Loads job `id` whole (knowledge base, estimator, calibration) and only then puts it in
+    /// force; a job that is not configured or does not load leaves the job in force as it was.
+    /// Either way the handshake learns the outcome (JOB_STATUS) and the log says why.
+    fn change_job(&mut self, id: u16) {
+        let t = Instant::now();
+        let loaded = match self.jobs.iter().find(|j| j.id == id) {
+            None => {
+                let ids: Vec<String> = self.jobs.iter().map(|j| j.id.to_string()).collect();
+                Err(format!("job {id} is not configured (jobs: {})", ids.join(", ")))
+            }
+            Some(job) => super::load_job(&self.name, job, &self.source_config, &self.base_params).map(|l| (job.clone(), l)).map_err(|e| {
+                let mut text = e.to_string();
+                let mut cause = std::error::Error::source(&e);
+                while let Some(c) = cause {
+                    text.push_str(&format!(": {c}"));
+                    cause = c.source();
+                }
+                format!("job {id} ({}): {text}", job.name)
+            }),
+        };
+        // The job in force first, then the rest, as enrolment takes them: one of the two runs
+        // whole before the other.
+        let mut in_force = self.in_force.lock().unwrap_or_else(|p| p.into_inner());
+        let mut hs = self.handshake.lock().unwrap_or_else(|p| p.into_inner());
+        match loaded {
+            Ok((job, l)) => {
+                let types = l.kb.type_count().min(65535) as u16;
+                *self.estimator.write().unwrap_or_else(|p| p.into_inner()) = Arc::new(l.estimator);
+                self.roi = job.roi;
+                self.calibration = l.calibration;
+                *self.templates.lock().unwrap_or_else(|p| p.into_inner()) = l.kb;
+                *in_force = InForce { id: job.id, name: job.name.clone(), kb: job.kb.clone(), params: l.params };
+                hs.set_types_enrolled(types);
+                hs.job_changed(id, JobOutcome::InForce { expected_type: job.expected_type });
+                tracing::info!(
+                    camera = %self.name,
+                    "job {id} ({}) in force after {:.0} ms: knowledge base {}; calibration {}{}",
+                    job.name,
+                    t.elapsed().as_secs_f64() * 1e3,
+                    l.kb_desc,
+                    self.calibration.describe(),
+                    job.expected_type.map(|e| format!("; EXPECTED_TYPE {e}")).unwrap_or_default()
+                );
+            }
+            Err(reason) => {
+                hs.job_changed(id, JobOutcome::Failed);
+                let still = in_force.id;
+                drop(hs);
+                drop(in_force);
+                tracing::warn!(camera = %self.name, "job change failed, job {still} stays in force: {reason}");
+                self.note_error(format!("job change failed, job {still} stays in force: {reason}"));
+            }
+        }
     }
 
     fn update_camera_ok(&self) {
@@ -179,7 +259,8 @@ impl Worker {
                 (None, None) => None, // no frame came: nothing to keep
             };
             if let Some((image, label, fe, error)) = frame {
-                archive.offer(archive_item(&self.name, archive.unit_id(), acq_id, &results, image, label, fe, error));
+                let job_id = self.in_force.lock().unwrap_or_else(|p| p.into_inner()).id;
+                archive.offer(archive_item(&self.name, archive.unit_id(), acq_id, job_id, &results, image, label, fe, error));
             }
         }
         let cycle = t0.elapsed().as_secs_f64() * 1e3;
@@ -277,7 +358,8 @@ struct ArchiveRecord<'a> {
     camera: &'a str,
     unit_id: u8,
     acq_id: u16,
-    /// The job in force; a camera without `[[camera.job]]` tables is job 1.
+    /// The job in force when the frame was estimated (a camera without `[[camera.job]]` tables
+    /// is job 1).
     job_id: u16,
     user_data: u32,
     /// UTC, RFC 3339, when the frame was estimated.
@@ -296,6 +378,7 @@ fn archive_item(
     camera: &str,
     unit_id: u8,
     acq_id: u16,
+    job_id: u16,
     results: &[Queued],
     image: Arc<GrayImage>,
     label: &str,
@@ -310,7 +393,7 @@ fn archive_item(
         camera,
         unit_id,
         acq_id,
-        job_id: 1,
+        job_id,
         user_data: results.first().map_or(0, |r| r.user_data),
         time: humantime::format_rfc3339_millis(now).to_string(),
         unix_ms,

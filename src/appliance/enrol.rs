@@ -88,13 +88,16 @@ impl CameraHandle {
             estimate.parts.get(req.part.wrapping_sub(1)).ok_or(EnrolError::NoPart { part: req.part, count: estimate.parts.len() })?;
         let crop = crop_part(&frame, &part.outline).ok_or(EnrolError::AtBorder { part: req.part })?;
         let view = crop.view().map_err(|e| EnrolError::Template { part: req.part, source: e.into() })?;
-        let template = Template::from_image(view, &req.type_name, req.id, req.face, None, &self.params)
+        // Held to the end: a job change waits, so the template goes into the knowledge base of
+        // the job it was cut under, and the estimator built on it is that job's.
+        let job = self.job.lock().unwrap_or_else(|p| p.into_inner());
+        let template = Template::from_image(view, &req.type_name, req.id, req.face, None, &job.params)
             .map_err(|source| EnrolError::Template { part: req.part, source })?;
         let from = if label.is_empty() { "the current frame".to_string() } else { label };
         let mut kb = self.templates.lock().unwrap_or_else(|p| p.into_inner()).clone();
         let replaced = kb.enroll(template, format!("{}: {from}, part {}", req.by, req.part))?;
-        let estimator = Estimator::new(&kb.templates(), self.params.clone())?;
-        let saved = match &self.kb {
+        let estimator = Estimator::new(&kb.templates(), job.params.clone())?;
+        let saved = match &job.kb {
             KbSource::File(path) => {
                 let png = path.with_file_name(format!("{}_{}.png", req.type_name, req.face));
                 crate::imageio::write_png(&png, &crop).map_err(|e| EnrolError::Image {

@@ -16,7 +16,7 @@ use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 
 use crate::calibration::Calibration;
-use crate::config::{CameraConfig, Config, KbSource, SourceConfig};
+use crate::config::{CameraConfig, Config, JobConfig, KbSource, SourceConfig};
 use crate::handshake::{Handshake, Settings};
 use crate::kb::KnowledgeBase;
 use crate::modbus::server::{self, Station, Stations, Stats};
@@ -50,14 +50,18 @@ pub struct CameraHandle {
     pub handshake: Arc<Mutex<Handshake>>,
     pub live: Arc<Mutex<Live>>,
     pub estimator: camera::SharedEstimator,
-    /// Where the knowledge base lives (a file is rewritten on enrollment).
-    pub kb: KbSource,
-    /// The enrolled templates and where each came from.
+    /// The job in force: where its knowledge base lives (a file is rewritten on enrolment) and
+    /// the parameters its estimator was built with.
+    pub job: Arc<Mutex<camera::InForce>>,
+    /// The enrolled templates of the job in force and where each came from.
     pub templates: Arc<Mutex<KnowledgeBase>>,
-    pub params: Params,
     pub robot: Option<Arc<Mutex<crate::registers::RobotView>>>,
     /// The image archive (its counters, and where to read it back), if one is configured.
     pub archive: Option<archive::Shelf>,
+    /// The configured jobs (id, name), for the operator view.
+    pub jobs: Vec<(u16, String)>,
+    /// Into the camera's worker, as the Modbus server sends (job changes from the page).
+    commands: std::sync::mpsc::Sender<crate::handshake::Command>,
     thread: Mutex<Option<std::thread::JoinHandle<()>>>,
 }
 
@@ -75,29 +79,47 @@ pub struct Running {
     tasks: Vec<tokio::task::JoinHandle<()>>,
 }
 
-fn templates_for(cam: &CameraConfig, params: &Params) -> Result<(KnowledgeBase, String), StartError> {
-    match &cam.kb {
+/// A job made ready to run: its templates, the estimator built on them with the job's accept
+/// threshold, and its calibration. Nothing of the camera changes until all of it is there.
+pub struct Loaded {
+    pub kb: KnowledgeBase,
+    /// Where the templates came from, for the log.
+    pub kb_desc: String,
+    pub estimator: Estimator,
+    pub params: Params,
+    pub calibration: Calibration,
+}
+
+/// Loads a job of camera `camera` (the start-up job, or one the PLC asks for).
+pub fn load_job(camera: &str, job: &JobConfig, source: &SourceConfig, base: &Params) -> Result<Loaded, StartError> {
+    let params = Params { accept_threshold: job.accept_threshold, ..base.clone() };
+    let (kb, kb_desc) = match &job.kb {
         KbSource::File(p) => {
-            let kb = KnowledgeBase::load(p).map_err(|source| StartError::Kb { camera: cam.name.clone(), source })?;
+            let kb = KnowledgeBase::load(p).map_err(|source| StartError::Kb { camera: camera.to_string(), source })?;
             let desc = format!("{} ({} templates, {} types)", p.display(), kb.entries.len(), kb.type_count());
-            Ok((kb, desc))
+            (kb, desc)
         }
         KbSource::Simulator => {
-            let SourceConfig::Sim { seed, width, height, noise, .. } = cam.source else {
+            let SourceConfig::Sim { seed, width, height, noise, .. } = *source else {
                 unreachable!("the configuration only allows kb_from_simulator with a sim source")
             };
-            let sim = Simulator::new(SimSource::config(seed, width, height, noise))
-                .map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })?;
+            let sim_err = |e: &dyn std::fmt::Display| StartError::Sim { camera: camera.to_string(), message: e.to_string() };
+            let sim = Simulator::new(SimSource::config(seed, width, height, noise)).map_err(|e| sim_err(&e))?;
             let names = sim.type_names();
             let mut out = KnowledgeBase::default();
-            for t in sim.enrolled(params).map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })? {
+            for t in sim.enrolled(&params).map_err(|e| sim_err(&e))? {
                 let source = format!("simulator template {}_{}", t.type_name, t.face);
                 out.entries.push(crate::kb::Entry { template: t, source });
             }
             let desc = names.iter().enumerate().map(|(i, n)| format!("{n} = {}", i + 1)).collect::<Vec<_>>().join(", ");
-            Ok((out, format!("enrolled from the simulated camera's templates ({desc})")))
+            (out, format!("enrolled from the simulated camera's templates ({desc})"))
         }
-    }
+    };
+    let estimator =
+        Estimator::new(&kb.templates(), params.clone()).map_err(|source| StartError::Estimator { camera: camera.to_string(), source })?;
+    let calibration =
+        Calibration::from_config(&job.calibration).map_err(|source| StartError::Calibration { camera: camera.to_string(), source })?;
+    Ok(Loaded { kb, kb_desc, estimator, params, calibration })
 }
 
 fn source_for(cam: &CameraConfig) -> Result<Box<dyn Source>, StartError> {
@@ -137,15 +159,29 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
     let mut stations = Vec::new();
     let mut robot_links = Vec::new();
     for cam in &cfg.cameras {
-        let (entries, kb_desc) = templates_for(cam, &params)?;
-        let templates = entries.templates();
-        let estimator: camera::SharedEstimator = Arc::new(std::sync::RwLock::new(Arc::new(
-            Estimator::new(&templates, params.clone()).map_err(|source| StartError::Estimator { camera: cam.name.clone(), source })?,
-        )));
-        let calibration =
-            Calibration::from_config(&cam.calibration).map_err(|source| StartError::Calibration { camera: cam.name.clone(), source })?;
+        let job = cam.start();
+        let Loaded { kb: entries, kb_desc, estimator, params: job_params, calibration } = load_job(&cam.name, job, &cam.source, &params)?;
+        let estimator: camera::SharedEstimator = Arc::new(std::sync::RwLock::new(Arc::new(estimator)));
         let types = entries.type_count().min(65535) as u16;
-        tracing::info!(camera = %cam.name, unit_id = cam.unit_id, "knowledge base: {kb_desc}; calibration: {}", calibration.describe());
+        tracing::info!(
+            camera = %cam.name,
+            unit_id = cam.unit_id,
+            "job {} ({}): knowledge base: {kb_desc}; calibration: {}",
+            job.id,
+            job.name,
+            calibration.describe()
+        );
+        // The other jobs load when the PLC asks for them; a knowledge base file missing now is
+        // named now, so that it is not first noticed as a failed change on the line.
+        for other in cam.jobs.iter().filter(|j| j.id != job.id) {
+            if let KbSource::File(p) = &other.kb
+                && !p.is_file()
+            {
+                tracing::warn!(camera = %cam.name, "job {} ({}): knowledge base {} does not exist (a change to it will fail)", other.id, other.name, p.display());
+            }
+        }
+        let in_force = Arc::new(Mutex::new(camera::InForce { id: job.id, name: job.name.clone(), kb: job.kb.clone(), params: job_params }));
+        let templates = Arc::new(Mutex::new(entries));
         let handshake = Arc::new(Mutex::new(Handshake::new(Settings {
             queue_depth: cfg.queue_depth,
             online: cam.online,
@@ -153,6 +189,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             types_enrolled: types,
             picking_order: cam.picking_order,
             boot_id,
+            job_id: job.id,
         })));
         let (tx, rx) = std::sync::mpsc::channel();
         let live = Arc::new(Mutex::new(Live::default()));
@@ -178,7 +215,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
         let worker = Worker {
             name: cam.name.clone(),
             trigger: cam.trigger,
-            roi: cam.roi,
+            roi: job.roi,
             estimator: estimator.clone(),
             calibration,
             source,
@@ -190,21 +227,32 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             robot_sends_all: cam.robot.as_ref().is_some_and(|r| r.send == crate::config::RobotSend::All),
             robot: robot_tx,
             archive,
+            jobs: cam.jobs.clone(),
+            source_config: cam.source.clone(),
+            base_params: params.clone(),
+            in_force: in_force.clone(),
+            templates: templates.clone(),
         };
         let thread =
             std::thread::Builder::new().name(format!("camera-{}", cam.unit_id)).spawn(move || worker.run()).expect("spawn camera thread");
-        stations.push(Station { unit_id: cam.unit_id, handshake: handshake.clone(), commands: tx, last_writer: Mutex::new((None, None)) });
+        stations.push(Station {
+            unit_id: cam.unit_id,
+            handshake: handshake.clone(),
+            commands: tx.clone(),
+            last_writer: Mutex::new((None, None)),
+        });
         cameras.push(CameraHandle {
             unit_id: cam.unit_id,
             name: cam.name.clone(),
             handshake,
             live,
             estimator,
-            kb: cam.kb.clone(),
-            templates: Arc::new(Mutex::new(entries)),
-            params: params.clone(),
+            job: in_force,
+            templates,
             robot: robot_view,
             archive: shelf,
+            commands: tx.clone(),
+            jobs: cam.jobs.iter().map(|j| (j.id, j.name.clone())).collect(),
             thread: Mutex::new(Some(thread)),
         });
     }
@@ -254,6 +302,35 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
     }
     let cameras = Arc::new(cameras);
     Ok(Running { modbus_addr, http_addr: None, cameras, stations, stats, started, shutdown, stop, tasks })
+}
+
+/// Why a job change was not started.
+#[derive(Debug, thiserror::Error)]
+pub enum JobRequestError {
+    #[error("job id {0} is outside 1..=999")]
+    OutOfRange(u16),
+    #[error("the camera's worker has stopped")]
+    Stopped,
+}
+
+impl CameraHandle {
+    /// Asks for job `id` as a PLC does (a JOB_REQUEST write: the same rule, the same JOB_STATUS,
+    /// the same READY), for the operator view. The outcome shows in JOB_STATUS.
+    pub fn request_job(&self, id: u16) -> Result<(), JobRequestError> {
+        let reg = crate::registers::lookup(crate::registers::addr::JOB_REQUEST).expect("JOB_REQUEST is in the map");
+        if !crate::registers::value_allowed(reg, id) {
+            return Err(JobRequestError::OutOfRange(id));
+        }
+        let cmd = {
+            let mut hs = self.handshake.lock().unwrap_or_else(|p| p.into_inner());
+            // A JOB_REQUEST write takes no time stamp (only a TRIGGER edge does).
+            hs.write(crate::registers::addr::JOB_REQUEST, id, std::time::Duration::ZERO)
+        };
+        match cmd {
+            Some(c) => self.commands.send(c).map_err(|_| JobRequestError::Stopped),
+            None => Ok(()),
+        }
+    }
 }
 
 impl Running {

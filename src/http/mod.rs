@@ -170,6 +170,7 @@ pub fn router(state: AppState) -> Router {
         .route("/api/camera/{unit}/templates", get(templates))
         .route("/api/camera/{unit}/template/{index}", get(template_png))
         .route("/api/camera/{unit}/enroll", post(enroll))
+        .route("/api/camera/{unit}/job", post(change_job))
         .route("/api/camera/{unit}/archive", get(archive_list))
         .route("/api/camera/{unit}/archive/{file}", get(archive_file))
         .with_state(state)
@@ -367,6 +368,20 @@ struct CameraView {
     histogram_bin_ms: f64,
     parts: Vec<PartView>,
     last_error: Option<String>,
+    job: JobView,
+}
+
+/// The job in force and the last change, from the same snapshot as the registers.
+#[derive(Serialize)]
+struct JobView {
+    id: u16,
+    name: String,
+    /// "idle", "changing", "done" or "failed" (JOB_STATUS).
+    status: &'static str,
+    /// The last JOB_REQUEST (0: none yet).
+    request: u16,
+    /// Every configured job: (id, name).
+    jobs: Vec<(u16, String)>,
 }
 
 #[derive(Serialize)]
@@ -417,6 +432,23 @@ fn camera_view(c: &CameraHandle) -> CameraView {
         let hs = c.handshake.lock().unwrap_or_else(|p| p.into_inner());
         (hs.read(0, map::SIZE), hs.settings().word_order)
     };
+    let job = {
+        use map::job_status as js;
+        let name = c.job.lock().unwrap_or_else(|p| p.into_inner()).name.clone();
+        let status = match words[map::addr::JOB_STATUS as usize] {
+            js::IDLE => "idle",
+            js::CHANGING => "changing",
+            js::DONE => "done",
+            _ => "failed",
+        };
+        JobView {
+            id: words[map::addr::JOB_ID as usize],
+            name,
+            status,
+            request: words[map::addr::JOB_REQUEST as usize],
+            jobs: c.jobs.clone(),
+        }
+    };
     let live = c.live.lock().unwrap_or_else(|p| p.into_inner());
     let cycles: Vec<f64> = live.cycle_ms.iter().copied().collect();
     let p95 = nan_to_zero(crate::eval::percentile(&cycles, 0.95));
@@ -446,6 +478,7 @@ fn camera_view(c: &CameraHandle) -> CameraView {
         histogram_bin_ms: bin,
         parts: part_views(&live),
         last_error: live.last_error.clone(),
+        job,
     }
 }
 
@@ -551,6 +584,36 @@ async fn templates(State(state): State<AppState>, Path(unit): Path<u8>) -> Resul
         })
         .collect();
     Ok(axum::Json(list).into_response())
+}
+
+#[derive(Deserialize)]
+struct JobRequest {
+    id: u16,
+}
+
+/// Asks for a job change as the PLC would (JOB_REQUEST); 202: started, its outcome shows in
+/// the job's status.
+async fn change_job(
+    State(state): State<AppState>,
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    Path(unit): Path<u8>,
+    headers: HeaderMap,
+    axum::Json(req): axum::Json<JobRequest>,
+) -> Result<Response, Failure> {
+    if let Err(e) = authorized(&state, &headers) {
+        tracing::warn!(%peer, "refused a job change request: {}", e.1);
+        return Err(e);
+    }
+    let cam = camera(&state, unit)?;
+    cam.request_job(req.id).map_err(|e| {
+        let status = match e {
+            crate::appliance::JobRequestError::OutOfRange(_) => StatusCode::BAD_REQUEST,
+            crate::appliance::JobRequestError::Stopped => StatusCode::SERVICE_UNAVAILABLE,
+        };
+        (status, e.to_string())
+    })?;
+    tracing::info!(camera = %cam.name, %peer, "job {} requested from the operator view", req.id);
+    Ok((StatusCode::ACCEPTED, axum::Json(serde_json::json!({ "requested": req.id }))).into_response())
 }
 
 #[derive(Deserialize)]

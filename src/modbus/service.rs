@@ -60,7 +60,7 @@ fn check_writes(start: u16, values: &[u16]) -> Result<(), ExceptionCode> {
     }
     for (i, v) in values.iter().enumerate() {
         let r = map::lookup(start + i as u16).expect("writable implies defined");
-        if r.allowed.is_some_and(|ok| !ok.contains(v)) {
+        if !map::value_allowed(r, *v) {
             return Err(ExceptionCode::IllegalDataValue);
         }
     }
@@ -85,6 +85,7 @@ mod tests {
             types_enrolled: 3,
             picking_order: PickingOrder::XAscending,
             boot_id: 77,
+            job_id: 1,
         });
         let result = frame::parse_request(&pdu).and_then(|req| handle(&mut hs, &req, may_write, Duration::ZERO).map(|(r, _)| r));
         let adu = frame::encode(1, 1, pdu.first().copied().unwrap_or(0), &result);
@@ -94,8 +95,8 @@ mod tests {
 
     #[test]
     fn requests_and_their_answers() {
-        // FC3: MAP_VERSION (107) reads 3, TYPES_ENROLLED (109) 3, BOOT_ID (123) 77.
-        check("03 00 6b 00 01", true, "03 02 00 03");
+        // FC3: MAP_VERSION (107) reads 4, TYPES_ENROLLED (109) 3, BOOT_ID (123) 77.
+        check("03 00 6b 00 01", true, "03 02 00 04");
         check("03 00 7b 00 01", true, "03 02 00 4d");
         check("03 00 6d 00 01", true, "03 02 00 03");
         // Quantity before address: 0 or 126 registers is 0x03, past the map 0x02.
@@ -112,11 +113,16 @@ mod tests {
         check("06 00 03 00 01", false, "86 01");
         check("10 00 03 00 01 02 00 01", false, "90 01");
         // FC16: ONLINE and EXPECTED_TYPE together; a byte count that is not twice the quantity
-        // is 0x03; USER_DATA (5-6) takes any value; five registers from 3 reach reserved 7 (0x02).
+        // is 0x03; USER_DATA (5-6) takes any value; six registers from 3 reach reserved 8 (0x02).
         check("10 00 03 00 02 04 00 01 00 02", true, "10 00 03 00 02");
         check("10 00 03 00 02 03 00 01 00", true, "90 03");
         check("10 00 05 00 02 04 ff ff ff ff", true, "10 00 05 00 02");
-        check("10 00 03 00 05 0a 00 01 00 02 00 00 00 00 00 00", true, "90 02");
+        check("10 00 03 00 06 0c 00 01 00 02 00 00 00 00 00 01 00 00", true, "90 02");
+        // JOB_REQUEST (7) takes 1..999: 0 and 1000 are 0x03; JOB_ID (121) is read-only.
+        check("06 00 07 00 02", true, "06 00 07 00 02");
+        check("06 00 07 00 00", true, "86 03");
+        check("06 00 07 03 e8", true, "86 03");
+        check("06 00 79 00 01", true, "86 02");
         // Functions the appliance does not serve.
         check("04 00 00 00 01", true, "84 01");
         check("17 00 64 00 01 00 00 00 01 02 00 00", true, "97 01");
