@@ -182,11 +182,11 @@ impl Worker {
             }
             Err(reason) => {
                 hs.job_changed(id, JobOutcome::Failed);
-                let still = in_force.id;
+                let message = format!("job change failed, job {} stays in force: {reason}", in_force.id);
                 drop(hs);
                 drop(in_force);
-                tracing::warn!(camera = %self.name, "job change failed, job {still} stays in force: {reason}");
-                self.note_error(format!("job change failed, job {still} stays in force: {reason}"));
+                tracing::warn!(camera = %self.name, "{message}");
+                self.note_error(message);
             }
         }
     }

@@ -20,7 +20,9 @@ use opencv::imgproc;
 use opencv::prelude::*;
 
 use super::detect::{Blob, Coarse};
-use super::geometry::{Pt, Similarity, angle_diff_deg, area_centroid, bounds, contains, outward_normals, resample_closed, smooth_closed};
+use super::geometry::{
+    Affine, Pt, Similarity, angle_diff_deg, area_centroid, bounds, contains, outward_normals, resample_closed, smooth_closed,
+};
 use super::register::{self, OutlineIndex, Registration};
 use super::template::Library;
 
@@ -250,10 +252,7 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     let features = |x: &Found, zone: &Mat| -> (usize, f64) {
         let t = &lib.entries[x.entry].template;
         let pose = x.reg.pose;
-        let (to_frame, turn) = (
-            pose.forward(),
-            Similarity { from: Pt::new(0.0, 0.0), to: Pt::new(0.0, 0.0), angle_rad: pose.angle_rad, scale: 1.0 }.forward(),
-        );
+        let (to_frame, turn) = (pose.forward(), Affine::rotation(pose.angle_rad));
         let (mut n, mut seen) = (0usize, 0usize);
         for &(q, nq) in &t.interior {
             let at = to_frame.apply(q);
@@ -619,7 +618,7 @@ fn verify(
 ) -> (f64, Vec<Probe>) {
     let mut pts = Vec::with_capacity(model.verify.len() / stride + 1);
     let to_frame = pose.forward();
-    let turn = Similarity { from: Pt::new(0.0, 0.0), to: Pt::new(0.0, 0.0), angle_rad: pose.angle_rad, scale: 1.0 }.forward();
+    let turn = Affine::rotation(pose.angle_rad);
     for &(m, n) in model.verify.iter().step_by(stride) {
         let at = to_frame.apply(m);
         let nn = turn.apply(n);

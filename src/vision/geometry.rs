@@ -109,6 +109,11 @@ pub struct Affine {
 }
 
 impl Affine {
+    /// [`rotate_display`] by `angle_rad` as a matrix (for normals: no scale, no offset).
+    pub fn rotation(angle_rad: f64) -> Self {
+        let (s, c) = angle_rad.sin_cos();
+        Self { m: [c, s, -s, c], t: Pt::new(0.0, 0.0) }
+    }
     /// The map `q -> to + m * (q - from)`.
     fn new(m: [f64; 4], from: Pt, to: Pt) -> Self {
         let t = Pt::new(to.x - (m[0] * from.x + m[1] * from.y), to.y - (m[2] * from.x + m[3] * from.y));
@@ -319,6 +324,7 @@ mod tests {
         for q in [Pt::new(0.0, 0.0), Pt::new(4.0, -3.0), Pt::new(-120.5, 77.25)] {
             assert!((fwd.apply(q) - t.apply(q)).norm() < 1e-9);
             assert!((inv.apply(q) - t.invert(q)).norm() < 1e-9);
+            assert!((Affine::rotation(t.angle_rad).apply(q) - rotate_display(q, t.angle_rad)).norm() < 1e-9);
         }
     }
 
