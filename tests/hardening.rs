@@ -241,8 +241,16 @@ async fn a_silent_or_slow_http_client_is_closed_after_the_header_timeout() {
 /// thread and an in-flight limit).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_hundred_parallel_live_frame_requests_do_not_slow_the_plc() {
+    use lfi_bridge::config::SourceConfig;
     use lfi_bridge::registers::status;
-    let running = start(&config("", "")).await;
+    // One scene served over and over: every cycle does the same work, so the loaded cycles
+    // compare with the unloaded median for what the load adds, not for which scene came up (the
+    // simulator's scenes differ by parts and clumps by 5x).
+    let mut cfg = config("", "");
+    if let SourceConfig::Sim { scenes, .. } = &mut cfg.cameras[0].source {
+        *scenes = 1;
+    }
+    let running = start(&cfg).await;
     let web = running.http_addr.unwrap();
     let mut ctx = plc(running.modbus_addr, 1).await;
     // Unloaded: the median trigger-to-result cycle.
@@ -320,10 +328,9 @@ async fn two_hundred_parallel_live_frame_requests_do_not_slow_the_plc() {
     );
     assert!(rounds >= 1);
     assert!(read_p99 <= 50.0, "read p99 {read_p99:.1} ms");
-    // The target is 2 x the unloaded median with the clients on other machines; here the
-    // load generator shares this machine's two cores with the appliance, so the bound is wider
-    // (the figure printed above is what the closing note quotes).
-    assert!(cycle_p99 <= 4.0 * unloaded.max(10.0), "cycle p99 {cycle_p99:.1} ms against an unloaded median of {unloaded:.1} ms");
+    // The bound: 2 x the unloaded median (a cycle under 10 ms is counted as 10: below
+    // that the figure is the test client's polling and the scheduler's tick, not the appliance).
+    assert!(cycle_p99 <= 2.0 * unloaded.max(10.0), "cycle p99 {cycle_p99:.1} ms against an unloaded median of {unloaded:.1} ms");
     running.stop().await;
 }
 
