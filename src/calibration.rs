@@ -12,18 +12,29 @@ pub enum Calibration {
     Scale(f64),
     /// Projective map; the angle is the direction of the part's axis mapped into the robot frame,
     /// counter-clockwise from robot +X towards robot +Y.
-    Homography { h: Matrix3<f64>, rms_mm: f64, max_mm: f64 },
+    Homography {
+        /// Pixels (x, y, 1) to millimetres (x, y, w), up to scale.
+        h: Matrix3<f64>,
+        /// RMS residual over the touched-up points, mm.
+        rms_mm: f64,
+        /// Largest residual over the touched-up points, mm.
+        max_mm: f64,
+    },
 }
 
+/// Why a calibration cannot be made from the configured points.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum CalibrationError {
+    /// Fewer than four point pairs (the number given).
     #[error("calibration needs at least 4 point pairs, got {0}")]
     TooFew(usize),
+    /// No homography fits the points.
     #[error("calibration points are degenerate (three or more on a line, or repeated): no homography fits")]
     Degenerate,
 }
 
 impl Calibration {
+    /// The calibration the configuration describes (a homography is fitted to its points).
     pub fn from_config(c: &CalibrationConfig) -> Result<Self, CalibrationError> {
         match c {
             CalibrationConfig::Scale { mm_per_px } => Ok(Calibration::Scale(*mm_per_px)),

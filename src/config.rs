@@ -1,6 +1,6 @@
 //! The appliance's configuration file (`config/*.toml`).
 //!
-//! Two stages, like a command line: [`raw`] mirrors the TOML (serde rejects unknown keys and
+//! Two stages, like a command line: `raw` mirrors the TOML (serde rejects unknown keys and
 //! wrong types with the line and column), then [`Config::from_toml`] validates ranges and
 //! combinations into ready-to-use values. Every error names the file, the key and the value.
 
@@ -12,7 +12,7 @@ pub use crate::handshake::PickingOrder;
 use crate::handshake::WordOrder;
 
 /// The file exactly as written.
-pub mod raw {
+mod raw {
     use serde::Deserialize;
 
     #[derive(Debug, Deserialize)]
@@ -301,43 +301,99 @@ pub mod raw {
 /// A configuration error: the file, the key, the value and what was expected.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
+    /// The file cannot be read at all.
     #[error("cannot read configuration {path}")]
-    Read { path: PathBuf, source: std::io::Error },
+    Read {
+        /// The configuration file.
+        path: PathBuf,
+        /// Why the system refused it.
+        source: std::io::Error,
+    },
+    /// Not TOML, an unknown key or a value of the wrong type (serde's message has line and column).
     #[error("configuration {path}: {message}")]
-    Syntax { path: PathBuf, message: String },
+    Syntax {
+        /// The configuration file.
+        path: PathBuf,
+        /// The parser's complaint.
+        message: String,
+    },
+    /// A well-formed value out of range or in a combination that cannot work.
     #[error("configuration {path}: {key} = {value} {problem}")]
-    Value { path: PathBuf, key: String, value: String, problem: String },
+    Value {
+        /// The configuration file.
+        path: PathBuf,
+        /// The key as a user finds it in the file (`camera[0].source.width`).
+        key: String,
+        /// The value as written.
+        value: String,
+        /// What is wrong with it, phrased to follow "key = value".
+        problem: String,
+    },
 }
 
 /// Where a camera's frames come from.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SourceConfig {
     /// The built-in simulated camera: `scenes` frames rendered at start-up and served in turn.
-    Sim { seed: u64, width: usize, height: usize, noise: Option<f64>, scenes: usize, interval: Duration },
+    Sim {
+        /// Seed of the scene generator: the same seed, the same scenes.
+        seed: u64,
+        /// Frame width, pixels.
+        width: usize,
+        /// Frame height, pixels.
+        height: usize,
+        /// Gaussian noise sigma (gray levels) on every frame; None: the scenes' own.
+        noise: Option<f64>,
+        /// Scenes rendered at start-up and served in turn.
+        scenes: usize,
+        /// Least time between frames in free-run (a real camera's frame rate).
+        interval: Duration,
+    },
     /// Image files dropped into a folder by the camera's own software.
-    Dir { path: PathBuf, settle: Duration, timeout: Duration },
+    Dir {
+        /// The inbox folder.
+        path: PathBuf,
+        /// A file is complete once its size and time have not changed for this long.
+        settle: Duration,
+        /// A trigger with no complete file within this is a camera fault.
+        timeout: Duration,
+    },
     /// OpenCV VideoCapture: a device index, a file, an RTSP URL or a GStreamer pipeline.
-    Video { uri: String, timeout: Duration },
+    Video {
+        /// What VideoCapture opens.
+        uri: String,
+        /// A trigger with no frame within this is a camera fault.
+        timeout: Duration,
+    },
 }
 
 /// `"modbus"` or `"free-run"`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Trigger {
+    /// One acquisition per TRIGGER edge from the PLC.
     #[default]
     Modbus,
+    /// Every frame the camera delivers is an acquisition (the newest when the estimator is free).
     FreeRun,
 }
 
 /// Pixel to robot-frame millimetres.
 #[derive(Debug, Clone, PartialEq)]
 pub enum CalibrationConfig {
-    Scale { mm_per_px: f64 },
+    /// A plain scale about the frame's origin (`mm_per_px`): a camera square over a flat belt.
+    Scale {
+        /// Millimetres per pixel.
+        mm_per_px: f64,
+    },
+    /// A homography fitted to touched-up `[x_px, y_px, x_mm, y_mm]` pairs (four or more): tilt.
     Points(Vec<[f64; 4]>),
 }
 
+/// Where a job's templates come from.
 #[derive(Debug, Clone, PartialEq)]
 pub enum KbSource {
+    /// A knowledge-base file (resolved against the configuration's folder).
     File(PathBuf),
     /// Enroll the simulated camera's own templates at start-up.
     Simulator,
@@ -349,16 +405,22 @@ pub enum KbSource {
 pub struct JobConfig {
     /// 1..=999, as the PLC writes it to JOB_REQUEST.
     pub id: u16,
+    /// For the log and the operator view ("job 3 (housing line B)").
     pub name: String,
+    /// The templates this job recognises.
     pub kb: KbSource,
     /// Written into EXPECTED_TYPE when the job comes into force (None: left as it is).
     pub expected_type: Option<u16>,
+    /// Least confidence for an accept.
     pub accept_threshold: f64,
+    /// `[x, y, width, height]` of the frame the estimator looks at (None: the whole frame).
     pub roi: Option<[usize; 4]>,
+    /// Pixels to robot millimetres.
     pub calibration: CalibrationConfig,
 }
 
 impl CameraConfig {
+    /// The job with this id, if the camera has one.
     pub fn job(&self, id: u16) -> Option<&JobConfig> {
         self.jobs.iter().find(|j| j.id == id)
     }
@@ -375,17 +437,22 @@ pub enum ArchiveSave {
     /// Frames with at least one rejected result (a no-part or frame-error result is one).
     #[default]
     Rejects,
+    /// Every frame (commissioning; the folder's limits still apply).
     All,
+    /// No frame: the archive is off.
     None,
 }
 
 /// `[camera.archive]`: where and how many frames are kept (see [`crate::appliance::archive`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ArchiveConfig {
+    /// The archive folder (resolved against the configuration's folder).
     pub dir: PathBuf,
+    /// Which frames are kept.
     pub save: ArchiveSave,
     /// Frames kept (an image and its sidecar are one).
     pub max_files: usize,
+    /// Bytes kept (`max_mb`); the oldest frames go first when either limit is reached.
     pub max_bytes: u64,
 }
 
@@ -393,57 +460,87 @@ pub struct ArchiveConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum RobotSend {
+    /// Only parts the robot may pick.
     #[default]
     Accepted,
+    /// Every result, rejects included (the robot program sorts them).
     All,
 }
 
+/// `[camera.robot]`: the robot controller this camera hands its parts to.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RobotConfig {
+    /// The controller's Modbus/TCP server, `host:port`.
     pub address: String,
+    /// Modbus unit id the controller answers to.
     pub unit_id: u8,
+    /// First of the controller's registers the appliance writes (the part data).
     pub input_words_at: u16,
+    /// First of the controller's registers the appliance reads (ready, ack).
     pub output_words_at: u16,
     /// 3 read holding registers, 4 read input registers.
     pub output_function: u8,
+    /// How often the controller's outputs are read.
     pub poll: Duration,
+    /// A part not acknowledged within this counts as an ack timeout and is sent again.
     pub ack_timeout: Duration,
+    /// Which results go to the robot.
     pub send: RobotSend,
+    /// Parts waiting for the robot; beyond it the newest are dropped and counted.
     pub queue_depth: usize,
     /// Word order of USER_DATA in input words 8-9: the camera's `float_word_order`.
     pub word_order: WordOrder,
 }
 
+/// One `[[camera]]`: a camera, its jobs, and the Modbus unit id the PLC reaches it by.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraConfig {
+    /// The Modbus unit id of this camera's register map.
     pub unit_id: u8,
+    /// For the log and the operator view.
     pub name: String,
+    /// Where its frames come from.
     pub source: SourceConfig,
+    /// What starts an acquisition.
     pub trigger: Trigger,
+    /// ONLINE at start-up (the PLC may change it).
     pub online: bool,
     /// What the camera can be switched between (JOB_REQUEST); a camera without
     /// `[[camera.job]]` tables has one, job 1, of its own keys.
     pub jobs: Vec<JobConfig>,
     /// The job in force at start-up.
     pub start_job: u16,
+    /// Word order of floats and 32-bit values (`float_word_order`).
     pub word_order: WordOrder,
+    /// The robot link, if the camera has one.
     pub robot: Option<RobotConfig>,
+    /// The order a frame's accepted parts are handed out in.
     pub picking_order: PickingOrder,
+    /// The image archive, if configured.
     pub archive: Option<ArchiveConfig>,
 }
 
+/// `[modbus]`: the PLC's server.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModbusConfig {
+    /// Address and port the server listens on.
     pub bind: SocketAddr,
+    /// Connections served at once; a new client takes the slot of the one idle longest.
     pub max_connections: usize,
+    /// A connection silent this long is closed.
     pub idle_timeout: Duration,
+    /// A request must be complete within this of its first byte.
     pub frame_timeout: Duration,
+    /// Peers whose writes are obeyed (empty: any peer); others get exception 0x01.
     pub write_allow: Vec<IpAddr>,
 }
 
+/// `[http]`: the operator view.
 #[derive(Debug, Clone, PartialEq)]
 pub struct HttpConfig {
+    /// Address and port of the page.
     pub bind: SocketAddr,
+    /// Bearer token for changes (enrolment, jobs); None: the view is read-only.
     pub token: Option<String>,
     /// Open connections served at once; further ones wait in the kernel's backlog (they use no
     /// descriptor of the appliance's), so HTTP can never take the PLC's or the cameras'.
@@ -459,12 +556,19 @@ pub struct HttpConfig {
 /// The validated configuration.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
+    /// The file it was read from (relative paths in it are resolved against its folder).
     pub path: PathBuf,
+    /// The PLC's server.
     pub modbus: ModbusConfig,
+    /// Results queued per camera for the PLC (`[result] queue_depth`).
     pub queue_depth: usize,
+    /// Default least confidence for an accept (a job may set its own).
     pub accept_threshold: f64,
+    /// `tracing` filter (`[log] level`).
     pub log_level: String,
+    /// The operator view, unless `[http] enabled = false`.
     pub http: Option<HttpConfig>,
+    /// The cameras, each with its own register map.
     pub cameras: Vec<CameraConfig>,
 }
 
@@ -491,11 +595,14 @@ impl Check<'_> {
 }
 
 impl Config {
+    /// Reads and validates the file at `path`.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.into(), source })?;
         Self::from_toml(&text, path)
     }
 
+    /// Validates `text` as the contents of `path` (which names it in errors and anchors its
+    /// relative paths).
     pub fn from_toml(text: &str, path: &Path) -> Result<Self, ConfigError> {
         let raw: raw::File = toml::from_str(text).map_err(|e| ConfigError::Syntax { path: path.into(), message: e.to_string() })?;
         let c = Check { path };

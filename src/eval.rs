@@ -16,14 +16,19 @@ use crate::vision::geometry::angle_diff_deg;
 
 /// Farthest a prediction may be from a true part's centroid to be its estimate, pixels.
 pub const MATCH_RADIUS: f64 = 60.0;
+/// A pose is right when its angle is within this of the truth (and its position within 5 px).
 pub const POSE_TOLERANCE_DEG: f64 = 2.0;
+/// An accept whose type, face or angle (beyond this) is wrong is a false accept.
 pub const FALSE_ACCEPT_DEG: f64 = 5.0;
 
 /// One image's estimate as the evaluator needs it.
 #[derive(Debug, Clone)]
 pub struct Observation {
+    /// What the frame holds.
     pub truth: TruthRecord,
+    /// What the estimator said.
     pub parts: Vec<EstimatePart>,
+    /// Estimate time, ms.
     pub elapsed_ms: f64,
 }
 
@@ -53,18 +58,29 @@ struct Acc {
 /// Summary of one group, as printed.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct GroupReport {
+    /// The group's name ("overall", a condition, a type, a noise band).
     pub group: String,
+    /// Frames in the group.
     pub frames: usize,
     /// True parts of enrolled types.
     pub parts: usize,
+    /// Parts whose type was named right.
     pub type_accuracy: f64,
+    /// Parts whose type and face were named right.
     pub face_accuracy: f64,
+    /// Parts with type, face and pose right (accepted or not).
     pub pose_accuracy: f64,
+    /// Angle error of the right-type parts, degrees.
     pub angle_err_mean: f64,
+    /// See `angle_err_mean`.
     pub angle_err_median: f64,
+    /// See `angle_err_mean`.
     pub angle_err_p95: f64,
+    /// Position error of the right-type parts, pixels.
     pub centroid_err_median: f64,
+    /// See `centroid_err_median`.
     pub centroid_err_p95: f64,
+    /// Accepted over parts of enrolled types (whatever the pose).
     pub pass_through: f64,
     /// Accepted and pose right, over every part of an enrolled type.
     pub pick: f64,
@@ -74,19 +90,28 @@ pub struct GroupReport {
     pub uncovered_parts: usize,
     /// Accepted parts with a visible fraction below 0.98 (must be 0).
     pub covered_accepts: usize,
+    /// Accepts with a wrong type, face or pose.
     pub false_accepts: usize,
     /// Parts of types not enrolled, and how many of them were rejected.
     pub unknown_parts: usize,
+    /// See `unknown_parts`.
     pub unknown_rejected: usize,
+    /// Estimate time per frame, ms.
     pub latency_median_ms: f64,
+    /// See `latency_median_ms`.
     pub latency_p95_ms: f64,
 }
 
+/// The evaluation of a truth file's frames, overall and by group.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct Report {
+    /// Every frame.
     pub overall: GroupReport,
+    /// By scene condition.
     pub by_condition: Vec<GroupReport>,
+    /// By part type.
     pub by_type: Vec<GroupReport>,
+    /// By noise band.
     pub by_noise: Vec<GroupReport>,
     /// Every false accept, described (image, what was accepted, what was there).
     pub false_accept_details: Vec<String>,

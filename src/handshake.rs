@@ -15,14 +15,21 @@ use crate::vision::Reason;
 /// One part's result as the PLC sees it, in the robot frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PartResult {
+    /// The robot may pick it.
     pub accepted: bool,
+    /// Why not, when it may not (REASON).
     pub reason: Reason,
+    /// TYPE_ID: the enrolled type's id, 0 unknown.
     pub type_id: u16,
     /// 0 unknown, 1 up, 2 down.
     pub face: u16,
+    /// Rotation of the part from its template, degrees in [0, 360).
     pub angle_deg: f64,
+    /// Position in the robot frame, millimetres.
     pub x_mm: f64,
+    /// Position in the robot frame, millimetres.
     pub y_mm: f64,
+    /// 0..1: the line features' agreement.
     pub confidence: f64,
 }
 
@@ -31,9 +38,17 @@ pub struct PartResult {
 pub enum Outcome {
     /// The frame was estimated; parts in the order the estimator found them (empty: no part on
     /// the belt). [`Handshake::complete`] puts them into picking order.
-    Parts { parts: Vec<PartResult>, processing_ms: f64 },
+    Parts {
+        /// The frame's parts.
+        parts: Vec<PartResult>,
+        /// Trigger-to-estimate time, for PROCESSING_TIME.
+        processing_ms: f64,
+    },
     /// No frame, or an unusable one.
-    Failed { fault: Fault },
+    Failed {
+        /// Camera or frame: ERROR_CODE follows from it.
+        fault: Fault,
+    },
 }
 
 /// Why an acquisition gave no frame to estimate.
@@ -59,16 +74,25 @@ impl Fault {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Command {
     /// Take a frame and report it with [`Handshake::complete`] under this acquisition id.
-    Acquire { acq_id: u16 },
+    Acquire {
+        /// The acquisition id (ACQ_ID of its results).
+        acq_id: u16,
+    },
     /// Load job `id` and report with [`Handshake::job_changed`].
-    ChangeJob { id: u16 },
+    ChangeJob {
+        /// The job id the PLC wrote to JOB_REQUEST.
+        id: u16,
+    },
 }
 
 /// How a job change ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum JobOutcome {
     /// The job is in force; its expected type (if it has one) goes into EXPECTED_TYPE.
-    InForce { expected_type: Option<u16> },
+    InForce {
+        /// Its EXPECTED_TYPE, if the job sets one.
+        expected_type: Option<u16>,
+    },
     /// Not configured, or its knowledge base would not load: the job in force stays.
     Failed,
 }
@@ -79,15 +103,21 @@ pub enum JobOutcome {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum PickingOrder {
+    /// Smallest robot-frame x first.
     #[default]
     XAscending,
+    /// Largest robot-frame x first.
     XDescending,
+    /// Smallest robot-frame y first.
     YAscending,
+    /// Largest robot-frame y first.
     YDescending,
+    /// Most confident first.
     Confidence,
 }
 
 impl PickingOrder {
+    /// The order of two parts of the same group (accepted or not).
     pub fn compare(&self, a: &PartResult, b: &PartResult) -> std::cmp::Ordering {
         match self {
             PickingOrder::XAscending => a.x_mm.total_cmp(&b.x_mm),
@@ -102,12 +132,17 @@ impl PickingOrder {
 /// A result of an acquisition, as queued for the PLC (`seq` 0: the queue was full, dropped).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Queued {
+    /// RESULT_SEQ: 1..=65535, wrapping past 0.
     pub seq: u16,
+    /// ACQ_ID of the frame it came from.
     pub acq_id: u16,
+    /// The part.
     pub part: PartResult,
     /// 1-based index in picking order; 0 (with `count` 0) for a no-part or frame-error result.
     pub index: u16,
+    /// PART_COUNT: parts of the frame.
     pub count: u16,
+    /// PROCESSING_TIME of the frame, ms.
     pub processing_ms: f64,
     /// USER_DATA as latched when the frame was taken.
     pub user_data: u32,
@@ -126,20 +161,30 @@ impl Queued {
 /// Counters the operator sees beside the registers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Counters {
+    /// Acquisitions started (ACQ_COUNT).
     pub acquisitions: u64,
+    /// Results queued.
     pub results: u64,
+    /// Results dropped on a full queue (OVERRUN_COUNT).
     pub dropped: u64,
+    /// TRIGGER edges while not READY (MISSED_TRIGGERS).
     pub missed_triggers: u64,
+    /// RESULT_ACK writes that matched no waiting result (RESULT_ACK_IGNORED).
     pub ignored_acks: u64,
 }
 
 /// Settings of one camera's handshake.
 #[derive(Debug, Clone)]
 pub struct Settings {
+    /// Results queued at most; beyond, the newest are dropped.
     pub queue_depth: usize,
+    /// ONLINE at start-up.
     pub online: bool,
+    /// Word order of floats and 32-bit values.
     pub word_order: WordOrder,
+    /// TYPES_ENROLLED at start-up.
     pub types_enrolled: u16,
+    /// The order a frame's results are queued in.
     pub picking_order: PickingOrder,
     /// BOOT_ID: drawn by the appliance at start (non-zero), the same for every camera.
     pub boot_id: u16,
@@ -194,6 +239,7 @@ pub fn angle_word(deg: f64) -> u16 {
 }
 
 impl Handshake {
+    /// A handshake at power-up: nothing queued, no acquisition running.
     pub fn new(settings: Settings) -> Self {
         let job_id = settings.job_id;
         Self {
@@ -258,6 +304,7 @@ impl Handshake {
         self.job_status = if self.jobs_pending > 0 { job_status::CHANGING } else { status };
     }
 
+    /// STATUS as the PLC reads it.
     pub fn status(&self) -> u16 {
         let mut s = 0;
         let mut set = |bit: u16, on: bool| {
@@ -276,15 +323,19 @@ impl Handshake {
         s
     }
 
+    /// The results waiting for RESULT_ACK, oldest first.
     pub fn queue(&self) -> &VecDeque<Queued> {
         &self.queue
     }
+    /// The counters so far.
     pub fn counters(&self) -> Counters {
         self.counters
     }
+    /// EXPECTED_TYPE as last written (0: any type).
     pub fn expected_type(&self) -> u16 {
         self.expected_type
     }
+    /// An acquisition runs (BUSY).
     pub fn busy(&self) -> bool {
         self.busy.is_some()
     }
@@ -544,9 +595,11 @@ impl Handshake {
         results
     }
 
+    /// The camera's state (CAMERA_OK); READY follows it.
     pub fn set_camera_ok(&mut self, ok: bool) {
         self.camera_ok = ok;
     }
+    /// CAMERA_OK.
     pub fn camera_ok(&self) -> bool {
         self.camera_ok
     }
@@ -556,13 +609,16 @@ impl Handshake {
         self.heartbeat = (since_start.as_secs() % 65536) as u16;
     }
 
+    /// The robot link's state, for registers 110..118.
     pub fn set_robot(&mut self, view: RobotView) {
         self.robot = view;
     }
+    /// The robot link's state as last set.
     pub fn robot(&self) -> RobotView {
         self.robot
     }
 
+    /// The settings it was made with.
     pub fn settings(&self) -> &Settings {
         &self.settings
     }

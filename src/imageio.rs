@@ -8,24 +8,68 @@ use opencv::prelude::*;
 
 use crate::vision::{FrameError, GrayImage};
 
+/// Why an image cannot be read or written; each names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
+    /// The file cannot be read.
     #[error("cannot read image {path}")]
-    Read { path: PathBuf, source: std::io::Error },
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why the system refused it.
+        source: std::io::Error,
+    },
+    /// 0 bytes.
     #[error("image {path} is empty (0 bytes)")]
-    EmptyFile { path: PathBuf },
+    EmptyFile {
+        /// The file.
+        path: PathBuf,
+    },
+    /// No decoder makes an image of it.
     #[error("image {path} cannot be decoded (truncated, corrupt or not an image format OpenCV reads)")]
-    Decode { path: PathBuf },
+    Decode {
+        /// The file.
+        path: PathBuf,
+    },
     /// The file stops before its format's end marker: a half-written or cut-off frame, which a
     /// decoder would otherwise fill with gray and report as an empty belt.
     #[error("image {path} is incomplete: {format} without its end marker ({len} bytes; half-written or cut off)")]
-    Truncated { path: PathBuf, format: &'static str, len: usize },
+    Truncated {
+        /// The file.
+        path: PathBuf,
+        /// Its format (from its first bytes).
+        format: &'static str,
+        /// Its length.
+        len: usize,
+    },
+    /// More pixels than a frame may have: refused from the header, before decoding.
     #[error("image {path} is {width} x {height} pixels, more than the {max} a frame may have")]
-    TooLarge { path: PathBuf, width: u64, height: u64, max: u64 },
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Width its header declares.
+        width: u64,
+        /// Height its header declares.
+        height: u64,
+        /// Most pixels allowed.
+        max: u64,
+    },
+    /// Decoded, but not a usable frame.
     #[error("image {path}")]
-    Frame { path: PathBuf, source: FrameError },
+    Frame {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with the frame.
+        source: FrameError,
+    },
+    /// The file cannot be written.
     #[error("cannot write image {path}: {message}")]
-    Write { path: PathBuf, message: String },
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// Why not.
+        message: String,
+    },
 }
 
 /// Most pixels a frame file may declare (a 64-MP frame; the largest machine-vision sensors have
@@ -111,6 +155,7 @@ pub fn encode_png(img: &GrayImage) -> Result<Vec<u8>, String> {
     encode_mat(&mat, ".png")
 }
 
+/// Encodes an image into a file format by extension (".png", ".jpg").
 pub fn encode_mat(mat: &Mat, ext: &str) -> Result<Vec<u8>, String> {
     let mut buf = Vector::<u8>::new();
     let ok = imgcodecs::imencode(ext, mat, &mut buf, &Vector::new()).map_err(|e| e.to_string())?;

@@ -28,31 +28,96 @@ use serde::{Deserialize, Serialize};
 
 use crate::vision::{Face, KeepOut, Pt, Segment, Template};
 
+/// The `format` line every knowledge base starts with: a TOML file of another kind is refused by name.
 pub const FORMAT: &str = "lfi-bridge knowledge base";
+/// The layout this build reads and writes; bumped when an older build would misread a file.
 pub const VERSION: u32 = 1;
 /// Largest template image side accepted from a file (a part filling a 16k-pixel sensor).
 pub const MAX_SIDE: usize = 16384;
 
+/// Why a knowledge base cannot be read, written or extended; each names the file or the type.
 #[derive(Debug, thiserror::Error)]
 pub enum KbError {
+    /// The file cannot be read.
     #[error("cannot read knowledge base {path}")]
-    Read { path: PathBuf, source: std::io::Error },
+    Read {
+        /// The knowledge-base file.
+        path: PathBuf,
+        /// Why the system refused it.
+        source: std::io::Error,
+    },
+    /// The file cannot be written.
     #[error("cannot write knowledge base {path}")]
-    Write { path: PathBuf, source: std::io::Error },
+    Write {
+        /// The knowledge-base file.
+        path: PathBuf,
+        /// Why the system refused it.
+        source: std::io::Error,
+    },
+    /// Not TOML (or not this file's keys).
     #[error("knowledge base {path} is not valid TOML: {message}")]
-    Parse { path: PathBuf, message: String },
+    Parse {
+        /// The knowledge-base file.
+        path: PathBuf,
+        /// The parser's complaint, with line and column.
+        message: String,
+    },
+    /// Some other TOML file.
     #[error("{path} is not a knowledge base: format = {found:?}, expected {FORMAT:?}")]
-    Format { path: PathBuf, found: String },
+    Format {
+        /// The knowledge-base file.
+        path: PathBuf,
+        /// Its `format` value.
+        found: String,
+    },
+    /// Written by a build with another layout.
     #[error("knowledge base {path} has version {found}; this build reads version {VERSION}")]
-    Version { path: PathBuf, found: u32 },
+    Version {
+        /// The knowledge-base file.
+        path: PathBuf,
+        /// Its `version` value.
+        found: u32,
+    },
+    /// A template with an out-of-range or inconsistent value.
     #[error("knowledge base {path}, template {index} ({what}): {message}")]
-    Invalid { path: PathBuf, index: usize, what: String, message: String },
+    Invalid {
+        /// The knowledge-base file.
+        path: PathBuf,
+        /// The template's position in the file, from 0.
+        index: usize,
+        /// Which template ("bracket up").
+        what: String,
+        /// What is wrong, naming the field.
+        message: String,
+    },
+    /// A type enrolled again under another id.
     #[error("type {type_name:?} already has id {existing}; cannot enroll it with id {requested}")]
-    IdConflict { type_name: String, existing: u16, requested: u16 },
+    IdConflict {
+        /// The type.
+        type_name: String,
+        /// Its id in the knowledge base.
+        existing: u16,
+        /// The id asked for.
+        requested: u16,
+    },
+    /// A type name outside the safe set.
     #[error("type name {name:?} {problem}")]
-    TypeName { name: String, problem: String },
+    TypeName {
+        /// The name as given.
+        name: String,
+        /// What is wrong with it.
+        problem: String,
+    },
+    /// An id taken by another type.
     #[error("id {id} already belongs to type {existing:?}; cannot give it to {requested:?}")]
-    NameConflict { id: u16, existing: String, requested: String },
+    NameConflict {
+        /// The id.
+        id: u16,
+        /// The type that has it.
+        existing: String,
+        /// The type that asked for it.
+        requested: String,
+    },
 }
 
 #[derive(Debug, Serialize, Deserialize)]
@@ -92,13 +157,16 @@ struct Record {
 /// One enrolled template and the image it came from.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Entry {
+    /// The template.
     pub template: Template,
+    /// Where it came from (image file and region, or "simulator"), for the log and the page.
     pub source: String,
 }
 
 /// The templates of a knowledge base file.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct KnowledgeBase {
+    /// Templates in enrolment order.
     pub entries: Vec<Entry>,
 }
 
@@ -107,6 +175,7 @@ fn r3(v: f64) -> f64 {
 }
 
 impl KnowledgeBase {
+    /// The templates alone, for an estimator.
     pub fn templates(&self) -> Vec<Template> {
         self.entries.iter().map(|e| e.template.clone()).collect()
     }
@@ -145,6 +214,7 @@ impl KnowledgeBase {
         })
     }
 
+    /// The file's text.
     pub fn to_toml(&self) -> String {
         let file = KbFile {
             format: FORMAT.into(),
@@ -175,6 +245,7 @@ impl KnowledgeBase {
         toml::to_string(&file).expect("knowledge base records always serialise")
     }
 
+    /// Reads the text of `path` (named in errors), validating every number.
     pub fn from_toml(text: &str, path: &Path) -> Result<Self, KbError> {
         // Check the header first so a wrong file gets a wrong-file error, not a field error.
         #[derive(Deserialize)]
@@ -287,6 +358,7 @@ impl KnowledgeBase {
         Ok(kb)
     }
 
+    /// Reads and validates the file at `path`.
     pub fn load(path: &Path) -> Result<Self, KbError> {
         let text = std::fs::read_to_string(path).map_err(|source| KbError::Read { path: path.into(), source })?;
         Self::from_toml(&text, path)
@@ -297,6 +369,7 @@ impl KnowledgeBase {
         if path.exists() { Self::load(path) } else { Ok(Self::default()) }
     }
 
+    /// Writes the file at `path` (through a temporary file, so a crash never leaves half of one).
     pub fn save(&self, path: &Path) -> Result<(), KbError> {
         crate::imageio::write_atomic(path, self.to_toml().as_bytes()).map_err(|source| KbError::Write { path: path.into(), source })
     }

@@ -1,3 +1,4 @@
+#![warn(missing_docs)]
 //! lfi-bridge: part type, face and pose from a conveyor camera, served to a PLC and a robot.
 //!
 //! The crate is a functional core with an imperative shell. [`vision`] turns a frame into part

@@ -14,8 +14,11 @@ pub enum Access {
 /// How a register's 16 bits are to be read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Kind {
+    /// Unsigned 16 bits.
     U16,
+    /// Signed 16 bits (two's complement).
     I16,
+    /// Bit flags, named in `doc`.
     Bits,
     /// One half of an IEEE-754 float32 (word order per camera).
     F32,
@@ -36,9 +39,13 @@ impl Kind {
 /// One register (or the first word of a float).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Register {
+    /// 0-based protocol address (PLC tools show 400001 + address).
     pub addr: u16,
+    /// The name the PLC programmer and the document use.
     pub name: &'static str,
+    /// Who writes it.
     pub access: Access,
+    /// How its bits are read.
     pub kind: Kind,
     /// Scaling and unit, as a PLC programmer needs it.
     pub unit: &'static str,
@@ -46,6 +53,7 @@ pub struct Register {
     pub allowed: Option<&'static [u16]>,
     /// The range a PLC may write, inclusive (None: any).
     pub range: Option<(u16, u16)>,
+    /// What it means, for `register-map.md`.
     pub doc: &'static str,
 }
 
@@ -54,6 +62,10 @@ pub const SIZE: u16 = 300;
 /// Value of MAP_VERSION: bumped when a PLC program written for the old map would break.
 pub const MAP_VERSION: u16 = 4;
 
+/// Register addresses by name. What each one means is its row of [`MAP`] (and
+/// `register-map.md`, generated from it): a second description here would be a second truth
+/// to drift, so these names carry none.
+#[allow(missing_docs)]
 pub mod addr {
     pub const TRIGGER: u16 = 0;
     pub const RESULT_ACK: u16 = 1;
@@ -109,38 +121,59 @@ pub mod addr {
 
 /// STATUS (100) bits.
 pub mod status {
+    /// A TRIGGER edge now starts an acquisition (ONLINE, CAMERA_OK, not BUSY, no ERROR, no job change).
     pub const READY: u16 = 1 << 0;
+    /// The TRIGGER edge was taken; cleared when TRIGGER returns to 0.
     pub const TRIGGER_ACK: u16 = 1 << 1;
+    /// An acquisition runs.
     pub const BUSY: u16 = 1 << 2;
+    /// A result waits in the result block.
     pub const RESULT_VALID: u16 = 1 << 3;
+    /// Results were dropped on a full queue since the last CLEAR_ERROR.
     pub const RESULT_OVERRUN: u16 = 1 << 4;
+    /// A camera or frame fault; ERROR_CODE says which.
     pub const ERROR: u16 = 1 << 5;
+    /// The camera takes triggers (the PLC's ONLINE).
     pub const ONLINE: u16 = 1 << 6;
+    /// The camera delivers frames.
     pub const CAMERA_OK: u16 = 1 << 7;
+    /// Bit names, bit 0 first, for the page and the document.
     pub const NAMES: [&str; 8] = ["READY", "TRIGGER_ACK", "BUSY", "RESULT_VALID", "RESULT_OVERRUN", "ERROR", "ONLINE", "CAMERA_OK"];
 }
 
 /// ROBOT_STATUS (110) bits.
 pub mod robot_status {
+    /// A robot link is configured for this camera.
     pub const CONFIGURED: u16 = 1 << 0;
+    /// Its Modbus/TCP connection is up.
     pub const CONNECTED: u16 = 1 << 1;
+    /// A part was written and its ack is awaited.
     pub const WAITING_ACK: u16 = 1 << 2;
+    /// The last part's ack did not come in time (it is sent again).
     pub const ACK_TIMEOUT: u16 = 1 << 3;
+    /// The robot program says it is ready for parts.
     pub const ROBOT_READY: u16 = 1 << 4;
+    /// The robot program reports a fault.
     pub const ROBOT_FAULT: u16 = 1 << 5;
+    /// Bit names, bit 0 first, for the page and the document.
     pub const NAMES: [&str; 6] = ["CONFIGURED", "CONNECTED", "WAITING_ACK", "ACK_TIMEOUT", "ROBOT_READY", "ROBOT_FAULT"];
 }
 
 /// JOB_STATUS (122) values.
 pub mod job_status {
+    /// No job change since start-up.
     pub const IDLE: u16 = 0;
+    /// A job is being loaded (READY is 0).
     pub const CHANGING: u16 = 1;
+    /// The last change put the job asked for in force.
     pub const DONE: u16 = 2;
+    /// The last change failed; the job before it stays in force.
     pub const FAILED: u16 = 3;
 }
 
 /// ERROR_CODE (102) values.
 pub mod error_code {
+    /// No fault.
     pub const NONE: u16 = 0;
     /// The camera delivered no frame (source failed, timed out, or is gone).
     pub const CAMERA: u16 = 1;
@@ -406,14 +439,23 @@ pub fn markdown() -> String {
 /// The robot link's state as shown in registers 110..118.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct RobotView {
+    /// ROBOT_STATUS bits (see [`robot_status`]).
     pub bits: u16,
+    /// ROBOT_QUEUE: parts waiting for the robot.
     pub queue: u16,
+    /// ROBOT_DELIVERED: parts the robot acknowledged.
     pub delivered: u16,
+    /// ROBOT_ACK_TIMEOUTS.
     pub ack_timeouts: u16,
+    /// ROBOT_WRONG_ACKS: acks of a sequence number not sent.
     pub wrong_acks: u16,
+    /// ROBOT_RECONNECTS.
     pub reconnects: u16,
+    /// ROBOT_DROPPED: parts dropped on a full robot queue.
     pub dropped: u16,
+    /// ROBOT_DATA_SEQ: sequence number of the last part written.
     pub data_seq: u16,
+    /// ROBOT_ACK_SEQ: the last ack read back.
     pub ack_seq: u16,
 }
 
@@ -440,8 +482,10 @@ pub fn robot_bits(configured: bool, connected: bool, waiting: bool, timed_out: b
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum WordOrder {
+    /// The high word at the lower address (big-endian, Modicon's usual).
     #[default]
     HighFirst,
+    /// The low word at the lower address (word-swapped).
     LowFirst,
 }
 

@@ -9,18 +9,27 @@ use serde::{Deserialize, Serialize};
 pub struct TruthRecord {
     /// Path relative to the truth file's directory.
     pub image: String,
+    /// Scene kind ("clean", "touching", ...).
     pub condition: String,
+    /// Gaussian noise sigma added, gray levels.
     pub noise_sigma: f64,
+    /// The parts, in no particular order.
     pub parts: Vec<TruthPart>,
 }
 
+/// One part as it truly lies.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TruthPart {
+    /// Its type name (`type` in the file).
     #[serde(rename = "type")]
     pub type_name: String,
+    /// "up" or "down".
     pub face: String,
+    /// Rotation from its template, degrees.
     pub angle_deg: f64,
+    /// Its template origin in the frame, pixels.
     pub x_px: f64,
+    /// See `x_px`.
     pub y_px: f64,
     /// Fraction of the part's material that nothing lies on (1.0: whole, the default when a
     /// truth file predates the field; below 1: partly covered by another part).
@@ -38,26 +47,40 @@ pub const UNCOVERED: f64 = 0.98;
 /// One image's estimate, as `estimate --json` prints it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EstimateRecord {
+    /// The image, as given.
     pub image: String,
+    /// Estimate time, ms.
     pub elapsed_ms: f64,
+    /// One per part region.
     pub parts: Vec<EstimatePart>,
 }
 
+/// One part's estimate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EstimatePart {
+    /// Its type, if one was named (`type` in the file).
     #[serde(rename = "type")]
     pub type_name: Option<String>,
+    /// TYPE_ID (0 unknown).
     pub type_id: u16,
+    /// "up" or "down", if a type was named.
     pub face: Option<String>,
+    /// Rotation from the template, degrees.
     pub angle_deg: f64,
+    /// Template origin in the frame, pixels.
     pub x_px: f64,
+    /// See `x_px`.
     pub y_px: f64,
+    /// 0..1.
     pub confidence: f64,
+    /// The robot may pick it.
     pub accepted: bool,
+    /// REASON as text.
     pub reason: String,
 }
 
 impl EstimatePart {
+    /// The record of an estimator's part.
     pub fn from_estimate(p: &crate::vision::PartEstimate) -> Self {
         let r3 = |v: f64| (v * 1000.0).round() / 1000.0;
         Self {

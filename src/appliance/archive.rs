@@ -39,6 +39,7 @@ pub struct Counters {
 pub struct Item {
     /// The file stem (see [`stem`]).
     pub stem: String,
+    /// The frame as estimated.
     pub image: Arc<GrayImage>,
     /// The sidecar's JSON text.
     pub sidecar: String,
@@ -47,8 +48,11 @@ pub struct Item {
 /// Where a camera's archive is, for reading it back (the operator view's history).
 #[derive(Debug, Clone)]
 pub struct Shelf {
+    /// The archive folder.
     pub dir: PathBuf,
+    /// The camera's Modbus unit id (in every file name).
     pub unit_id: u8,
+    /// The counters the metrics read.
     pub counters: Arc<Counters>,
 }
 
@@ -84,6 +88,7 @@ impl Shelf {
 pub struct Archive {
     save: ArchiveSave,
     tx: Option<SyncSender<Item>>,
+    /// Saved, dropped, failed and deleted frames, shared with the metrics.
     pub counters: Arc<Counters>,
     camera: String,
     unit_id: u8,
@@ -147,6 +152,7 @@ impl Archive {
         wants(self.save, results)
     }
 
+    /// The camera's Modbus unit id.
     pub fn unit_id(&self) -> u8 {
         self.unit_id
     }
@@ -180,6 +186,7 @@ impl Drop for Archive {
     }
 }
 
+/// Whether `save` keeps a frame with these results.
 pub fn wants(save: ArchiveSave, results: &[Queued]) -> bool {
     match save {
         ArchiveSave::All => true,

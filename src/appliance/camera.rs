@@ -20,9 +20,13 @@ pub type SharedEstimator = Arc<std::sync::RwLock<Arc<Estimator>>>;
 /// its knowledge base with its parameters).
 #[derive(Debug, Clone)]
 pub struct InForce {
+    /// The job's id (JOB_ID).
     pub id: u16,
+    /// The job's name.
     pub name: String,
+    /// Where its templates live (a file is rewritten on enrolment).
     pub kb: crate::config::KbSource,
+    /// The parameters its estimator was built with.
     pub params: crate::vision::Params,
 }
 
@@ -32,6 +36,7 @@ pub struct InForce {
 /// order), the same the PLC, the robot link and the log get.
 #[derive(Default)]
 pub struct Live {
+    /// The latest frame (shared, never copied for the page).
     pub frame: Option<Arc<GrayImage>>,
     /// The latest frame's estimate, its parts in picking order (`parts[i]` has PART_INDEX
     /// `i + 1`) with the final verdict.
@@ -41,19 +46,25 @@ pub struct Live {
     pub results: Vec<Queued>,
     /// Increments with every frame shown (the page reloads the picture when it changes).
     pub seq: u64,
+    /// Where the frame came from (a file name, "sim scene 3 (clean)").
     pub label: String,
     /// Seconds since the appliance started, when the latest frame was estimated.
     pub at_s: f64,
+    /// Frames estimated.
     pub frames: u64,
+    /// Acquisitions without a usable frame.
     pub frame_errors: u64,
+    /// Parts accepted.
     pub accepted: u64,
     /// Rejected parts by REASON code.
     pub rejected: [u64; crate::vision::Reason::ALL.len()],
     /// Debris pieces seen, all frames, and in the latest frame.
     pub debris_total: u64,
+    /// See `debris_total`.
     pub debris_last: u64,
     /// The latest cycle times (trigger to results), ms, newest last.
     pub cycle_ms: std::collections::VecDeque<f64>,
+    /// The latest camera or frame fault, as the log wrote it (None once a frame succeeds).
     pub last_error: Option<String>,
     /// ACQ_ID of `results`.
     pub acq_id: u16,
@@ -62,7 +73,7 @@ pub struct Live {
 }
 
 /// Everything a worker needs.
-pub struct Worker {
+pub(crate) struct Worker {
     pub name: String,
     pub trigger: Trigger,
     pub roi: Option<[usize; 4]>,
@@ -89,7 +100,7 @@ pub struct Worker {
 }
 
 impl Worker {
-    pub fn run(mut self) {
+    pub(crate) fn run(mut self) {
         tracing::info!(camera = %self.name, "camera worker started ({:?} trigger)", self.trigger);
         while !self.stop.load(Ordering::Relaxed) {
             match self.trigger {

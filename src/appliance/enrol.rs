@@ -16,8 +16,11 @@ pub struct EnrolRequest {
     /// The part's PART_INDEX in the current frame (1.. in picking order, as the PLC and the
     /// operator view number it).
     pub part: usize,
+    /// The type's name (letters, digits, `-`, `_`).
     pub type_name: String,
+    /// Its TYPE_ID (1..=65535; the same type keeps its id).
     pub id: u16,
+    /// Which face lies up in the frame.
     pub face: Face,
     /// Who asked (kept as the template's source, e.g. "operator view (10.0.0.7:51234)").
     pub by: String,
@@ -37,20 +40,45 @@ pub struct Enrolled {
 /// Why an enrolment did not happen; nothing changed in any of these cases.
 #[derive(Debug, thiserror::Error)]
 pub enum EnrolError {
+    /// No frame has been taken yet.
     #[error("no frame yet: trigger one first")]
     NoFrame,
+    /// The part number is not one of the frame's parts.
     #[error("the current frame has no part {part} (PART_INDEX 1..={count})")]
-    NoPart { part: usize, count: usize },
+    NoPart {
+        /// The part asked for (as the page numbers them).
+        part: usize,
+        /// Parts in the frame.
+        count: usize,
+    },
+    /// The part is cut by the frame's edge: its outline is not whole.
     #[error("part {part} is too close to the frame border to cut out a template with a margin")]
-    AtBorder { part: usize },
+    AtBorder {
+        /// The part asked for.
+        part: usize,
+    },
+    /// The part does not make a template.
     #[error("part {part} gives no template")]
-    Template { part: usize, source: crate::vision::TemplateError },
+    Template {
+        /// The part asked for.
+        part: usize,
+        /// Why not.
+        source: crate::vision::TemplateError,
+    },
+    /// The knowledge base refused it (a name or id conflict, or the file).
     #[error(transparent)]
     Kb(#[from] crate::kb::KbError),
+    /// The new templates do not make an estimator.
     #[error("the new knowledge base gives no estimator")]
     Estimator(#[from] crate::vision::EstimatorError),
+    /// The image given cannot be used.
     #[error("cannot write the template image {path}: {message}")]
-    Image { path: PathBuf, message: String },
+    Image {
+        /// The image file.
+        path: PathBuf,
+        /// Why not.
+        message: String,
+    },
 }
 
 impl EnrolError {

@@ -29,32 +29,76 @@ use source::{DirSource, SimSource, Source, VideoSource};
 /// Why the appliance cannot start; each names the camera or address at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum StartError {
+    /// Its knowledge base cannot be loaded.
     #[error("camera {camera}: knowledge base")]
-    Kb { camera: String, source: crate::kb::KbError },
+    Kb {
+        /// The camera ("camera[0] (line 1)").
+        camera: String,
+        /// What is wrong with the file.
+        source: crate::kb::KbError,
+    },
+    /// Its templates do not make an estimator.
     #[error("camera {camera}: cannot build the estimator")]
-    Estimator { camera: String, source: crate::vision::EstimatorError },
+    Estimator {
+        /// The camera.
+        camera: String,
+        /// Why not.
+        source: crate::vision::EstimatorError,
+    },
+    /// The simulated camera cannot render its scenes.
     #[error("camera {camera}: simulated camera: {message}")]
-    Sim { camera: String, message: String },
+    Sim {
+        /// The camera.
+        camera: String,
+        /// The simulator's complaint.
+        message: String,
+    },
+    /// Its calibration does not fit.
     #[error("camera {camera}: calibration")]
-    Calibration { camera: String, source: crate::calibration::CalibrationError },
+    Calibration {
+        /// The camera.
+        camera: String,
+        /// Why not.
+        source: crate::calibration::CalibrationError,
+    },
+    /// Its image archive's folder cannot be made or read.
     #[error("camera {camera}: image archive {dir}")]
-    Archive { camera: String, dir: std::path::PathBuf, source: std::io::Error },
+    Archive {
+        /// The camera.
+        camera: String,
+        /// The archive folder.
+        dir: std::path::PathBuf,
+        /// Why the system refused it.
+        source: std::io::Error,
+    },
+    /// The PLC's port is taken or not ours.
     #[error("cannot listen for Modbus on {addr}")]
-    Bind { addr: SocketAddr, source: std::io::Error },
+    Bind {
+        /// The configured address.
+        addr: SocketAddr,
+        /// Why the system refused it.
+        source: std::io::Error,
+    },
 }
 
 /// A camera of the running appliance, for the operator view and tests.
 pub struct CameraHandle {
+    /// The Modbus unit id of its register map.
     pub unit_id: u8,
+    /// For the log and the page.
     pub name: String,
+    /// The PLC handshake (the state machine behind the registers).
     pub handshake: Arc<Mutex<Handshake>>,
+    /// What the operator view shows.
     pub live: Arc<Mutex<Live>>,
+    /// The estimator of the job in force (swapped whole on a job change or an enrolment).
     pub estimator: camera::SharedEstimator,
     /// The job in force: where its knowledge base lives (a file is rewritten on enrolment) and
     /// the parameters its estimator was built with.
     pub job: Arc<Mutex<camera::InForce>>,
     /// The enrolled templates of the job in force and where each came from.
     pub templates: Arc<Mutex<KnowledgeBase>>,
+    /// The robot link's state, if one is configured.
     pub robot: Option<Arc<Mutex<crate::registers::RobotView>>>,
     /// The image archive (its counters, and where to read it back), if one is configured.
     pub archive: Option<archive::Shelf>,
@@ -67,13 +111,19 @@ pub struct CameraHandle {
 
 /// The running appliance.
 pub struct Running {
+    /// Where the PLC's server listens (the port chosen when the configuration asked for 0).
     pub modbus_addr: SocketAddr,
     /// The operator view's address, once [`crate::http::attach`] has started it.
     pub http_addr: Option<SocketAddr>,
+    /// Every camera, in configuration order.
     pub cameras: Arc<Vec<CameraHandle>>,
+    /// The Modbus unit ids the server answers, and their handshakes.
     pub stations: Arc<Stations>,
+    /// Counters of the Modbus server.
     pub stats: Arc<Stats>,
+    /// When the appliance started (HEARTBEAT, uptime on the page).
     pub started: Instant,
+    /// Cancelled to stop every task.
     pub shutdown: CancellationToken,
     stop: Arc<AtomicBool>,
     tasks: Vec<tokio::task::JoinHandle<()>>,
@@ -82,11 +132,15 @@ pub struct Running {
 /// A job made ready to run: its templates, the estimator built on them with the job's accept
 /// threshold, and its calibration. Nothing of the camera changes until all of it is there.
 pub struct Loaded {
+    /// The job's templates.
     pub kb: KnowledgeBase,
     /// Where the templates came from, for the log.
     pub kb_desc: String,
+    /// The estimator on them.
     pub estimator: Estimator,
+    /// The parameters it was built with.
     pub params: Params,
+    /// Pixels to robot millimetres.
     pub calibration: Calibration,
 }
 
@@ -307,8 +361,10 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
 /// Why a job change was not started.
 #[derive(Debug, thiserror::Error)]
 pub enum JobRequestError {
+    /// Not a job id the PLC may write.
     #[error("job id {0} is outside 1..=999")]
     OutOfRange(u16),
+    /// The worker is gone (the appliance is stopping).
     #[error("the camera's worker has stopped")]
     Stopped,
 }

@@ -14,7 +14,9 @@ use crate::vision::GrayImage;
 /// A frame and where it came from (for logs).
 #[derive(Debug, Clone)]
 pub struct Frame {
+    /// The frame, gray.
     pub image: GrayImage,
+    /// Where it came from, for the log and the page.
     pub label: String,
 }
 
@@ -51,6 +53,7 @@ pub struct SimSource {
 }
 
 impl SimSource {
+    /// Renders `scenes` scenes of `sim` now (a camera that starts slowly, then serves at once).
     pub fn new(sim: &Simulator, scenes: usize, interval: Duration) -> Result<Self, SourceError> {
         let mut frames = Vec::with_capacity(scenes);
         for i in 0..scenes as u64 {
@@ -59,6 +62,7 @@ impl SimSource {
         }
         Ok(Self { frames, next: 0, interval, last: None })
     }
+    /// The simulator settings a `[camera.source] kind = "sim"` stands for.
     pub fn config(seed: u64, width: usize, height: usize, noise: Option<f64>) -> SimConfig {
         SimConfig { width, height, seed, noise }
     }
@@ -110,6 +114,7 @@ pub struct DirSource {
 }
 
 impl DirSource {
+    /// A source on the folder `inbox` (`done/` and `failed/` are made inside it as needed).
     pub fn new(inbox: &Path, settle: Duration, timeout: Duration) -> Self {
         Self { inbox: inbox.to_path_buf(), settle, timeout, watch: HashMap::new() }
     }
@@ -243,6 +248,7 @@ pub struct VideoSource {
 }
 
 impl VideoSource {
+    /// A source on `uri`, opened at the first grab (and reopened after a failure).
     pub fn new(uri: &str, timeout: Duration) -> Self {
         let mut s = Self { uri: uri.to_string(), cap: None, retry_at: Instant::now(), timeout };
         s.open();

@@ -41,9 +41,13 @@ pub type Picture = tokio::sync::Mutex<Option<(u64, axum::body::Bytes)>>;
 /// What the handlers share.
 #[derive(Clone)]
 pub struct AppState {
+    /// The appliance's cameras.
     pub cameras: Arc<Vec<CameraHandle>>,
+    /// The Modbus server's counters.
     pub stats: Arc<Stats>,
+    /// When the appliance started.
     pub started: Instant,
+    /// Bearer token for changes; None: read-only.
     pub token: Option<String>,
     /// Per camera, the live picture encoded for the latest frame (by `Live::seq`): encoded once
     /// per frame, however many clients ask (the lock makes the others wait for that one).
@@ -160,6 +164,7 @@ pub async fn serve(listener: TcpListener, state: AppState, limits: &HttpConfig, 
     }
 }
 
+/// The operator view's routes (also what tests drive without a socket).
 pub fn router(state: AppState) -> Router {
     Router::new()
         .route("/", get(|| async { Html(PAGE) }))

@@ -18,8 +18,11 @@ pub const MAX_LENGTH: usize = 512;
 /// One framed request.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Adu {
+    /// The MBAP transaction id, echoed in the response.
     pub transaction: u16,
+    /// The unit id (the camera).
     pub unit: u8,
+    /// Function code and data.
     pub pdu: Vec<u8>,
     /// The length field claimed more bytes than the function's own layout holds: the frame was
     /// cut where the function says it ends (so the next request is not swallowed as its tail),
@@ -40,8 +43,10 @@ fn own_length(pdu: &[u8]) -> Option<usize> {
 /// Why the byte stream cannot be framed (the connection must be closed: its boundaries are lost).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum FrameError {
+    /// A protocol id other than 0 (not Modbus).
     #[error("protocol id {0} is not Modbus (0)")]
     Protocol(u16),
+    /// A length field outside 2..=254.
     #[error("length field {0} is outside 2..=512")]
     Length(u16),
 }

@@ -19,6 +19,7 @@ use crate::handshake::{Command, Handshake};
 /// Server settings (validated by the configuration).
 #[derive(Debug, Clone)]
 pub struct Settings {
+    /// Connections served at once; a new client takes the slot of the one idle longest.
     pub max_connections: usize,
     /// A connection with no complete request for this long is closed.
     pub idle_timeout: Duration,
@@ -31,8 +32,11 @@ pub struct Settings {
 
 /// One camera as the server sees it: its handshake and where its commands go.
 pub struct Station {
+    /// Its Modbus unit id.
     pub unit_id: u8,
+    /// Its handshake, which every request reads and writes.
     pub handshake: Arc<Mutex<Handshake>>,
+    /// Into the camera's worker (acquisitions, job changes).
     pub commands: std::sync::mpsc::Sender<Command>,
     /// The address that last wrote to this camera, and when a second writer was last logged
     /// (two writers each consume results the other never sees; logged at most once a minute).
@@ -47,6 +51,7 @@ pub struct Stations {
 }
 
 impl Stations {
+    /// The stations by unit id, and the appliance's start (for HEARTBEAT).
     pub fn new(stations: Vec<Station>, started: Instant) -> Self {
         let mut by_unit: HashMap<u8, usize> = stations.iter().enumerate().map(|(i, s)| (s.unit_id, i)).collect();
         if !stations.is_empty() {
@@ -55,12 +60,15 @@ impl Stations {
         }
         Self { stations, by_unit, started }
     }
+    /// The station answering `unit`, if any.
     pub fn get(&self, unit: u8) -> Option<&Station> {
         self.by_unit.get(&unit).map(|&i| &self.stations[i])
     }
+    /// Every station, in configuration order.
     pub fn all(&self) -> &[Station] {
         &self.stations
     }
+    /// Time since the appliance started.
     pub fn since_start(&self) -> Duration {
         self.started.elapsed()
     }
@@ -69,9 +77,13 @@ impl Stations {
 /// Live numbers of the server (for logs and the operator view).
 #[derive(Debug, Default)]
 pub struct Stats {
+    /// Connections open now.
     pub connected: AtomicUsize,
+    /// Connections refused (none left to take over).
     pub refused: AtomicUsize,
+    /// Requests answered.
     pub requests: AtomicUsize,
+    /// Requests answered with an exception.
     pub exceptions: AtomicUsize,
 }
 

@@ -10,6 +10,7 @@ use crate::registers::{self as map, SIZE};
 
 /// Largest read (FC3) and write (FC16) quantities of the Modbus specification.
 pub const MAX_READ: u16 = 125;
+/// Most registers one write may carry (FC16's limit in the specification).
 pub const MAX_WRITE: u16 = 123;
 
 /// Handles one request. `may_write` is false for a client outside the configured allow-list.

@@ -15,22 +15,35 @@ use crate::registers::{RobotView, i16_word, robot_bits, u16_word, u32_words};
 
 /// Robot input words (offsets from `input_words_at`), written by the appliance.
 pub mod input {
+    /// Sequence number of the part in words 1..=9 (written last, so the robot never reads half a part).
     pub const DATA_SEQ: u16 = 0;
+    /// The part's TYPE_ID.
     pub const TYPE_ID: u16 = 1;
+    /// FACE: 1 up, 2 down.
     pub const FACE: u16 = 2;
+    /// Angle, 0.01 degree.
     pub const ANGLE: u16 = 3;
+    /// x, 0.1 mm (signed).
     pub const X: u16 = 4;
+    /// y, 0.1 mm (signed).
     pub const Y: u16 = 5;
+    /// Confidence, 0.1 %.
     pub const CONFIDENCE: u16 = 6;
+    /// +1 every poll: the robot can tell the link is alive.
     pub const HEARTBEAT: u16 = 7;
+    /// USER_DATA of the part's frame (two words, the camera's word order).
     pub const USER_DATA: u16 = 8;
+    /// Input words used.
     pub const COUNT: u16 = 10;
 }
 
 /// Robot output words (offsets from `output_words_at`), read by the appliance.
 pub mod output {
+    /// Bit 0 READY, bit 1 FAULT.
     pub const STATUS: u16 = 0;
+    /// The DATA_SEQ the robot has taken.
     pub const ACK_SEQ: u16 = 1;
+    /// Output words read.
     pub const COUNT: u16 = 2;
     /// STATUS bit 0: ready for a part.
     pub const READY: u16 = 1 << 0;
@@ -81,12 +94,25 @@ pub fn part_words(p: &PartResult) -> [u16; 6] {
 pub enum Action {
     /// Write words 1..=9 (the part's six, the heartbeat and USER_DATA, one FC16), then
     /// DATA_SEQ alone (a second request), so the robot never acts on half-written data.
-    Send { seq: u16, words: [u16; 9] },
+    Send {
+        /// DATA_SEQ of the part.
+        seq: u16,
+        /// Words 1..=9.
+        words: [u16; 9],
+    },
     /// Write HEARTBEAT alone.
-    Heartbeat { value: u16 },
+    Heartbeat {
+        /// The heartbeat word.
+        value: u16,
+    },
     /// The robot has not acknowledged DATA_SEQ `seq` within the ack timeout (`waited` so far):
     /// the part stays in flight; say so once.
-    ReportAckTimeout { seq: u16, waited: Duration },
+    ReportAckTimeout {
+        /// The DATA_SEQ awaiting its ack.
+        seq: u16,
+        /// Time since it was written.
+        waited: Duration,
+    },
 }
 
 fn next_seq(s: u16) -> u16 {
@@ -127,6 +153,7 @@ pub struct Link {
 }
 
 impl Link {
+    /// A link with room for `depth` parts waiting, acks expected within `ack_timeout`.
     pub fn new(depth: usize, ack_timeout: Duration, word_order: WordOrder) -> Self {
         Self {
             queue: VecDeque::new(),
@@ -272,9 +299,11 @@ impl Link {
         out
     }
 
+    /// The connection is up, as last reported by the driver.
     pub fn connected(&self) -> bool {
         self.connected
     }
+    /// Parts waiting or in flight.
     pub fn pending(&self) -> usize {
         self.queue.len() + self.in_flight.is_some() as usize
     }

@@ -20,8 +20,11 @@ pub const CONDITIONS: [&str; 9] = ["clean", "noise", "glare", "dim", "multi", "t
 /// Simulator settings.
 #[derive(Debug, Clone)]
 pub struct SimConfig {
+    /// Frame width, pixels.
     pub width: usize,
+    /// Frame height, pixels.
     pub height: usize,
+    /// The same seed renders the same scenes.
     pub seed: u64,
     /// Noise sigma for every scene instead of the condition's own.
     pub noise: Option<f64>,
@@ -36,9 +39,13 @@ impl Default for SimConfig {
 /// A rendered scene and its truth (image path relative to the dataset directory).
 #[derive(Debug, Clone)]
 pub struct Scene {
+    /// File name of the image (`scene-0003.png`).
     pub name: String,
+    /// The frame.
     pub image: GrayImage,
+    /// What it shows.
     pub truth: TruthRecord,
+    /// How it was rendered.
     pub extra: SceneExtra,
     /// Where debris (washers, bolts) lies, frame pixels: never a part, not in the truth.
     pub debris: Vec<Pt>,
@@ -47,27 +54,50 @@ pub struct Scene {
 /// Renderer settings recorded beside the truth (ignored by readers that do not know them).
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct SceneExtra {
+    /// Blur of the optics, pixels.
     pub blur_sigma: f64,
+    /// Exposure factor on the light (1: nominal).
     pub exposure: f64,
+    /// Pixels per millimetre of the belt.
     pub scale_px_per_mm: f64,
+    /// Frame width, pixels.
     pub width: usize,
+    /// Frame height, pixels.
     pub height: usize,
     /// Pieces of debris in the scene.
     pub debris: usize,
 }
 
+/// Why the simulator cannot render.
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
+    /// The frame asked for is too small.
     #[error("frame size {width} x {height} is too small for the simulator (at least 320 x 240)")]
-    TooSmall { width: usize, height: usize },
+    TooSmall {
+        /// Width asked for.
+        width: usize,
+        /// Height asked for.
+        height: usize,
+    },
+    /// A noise sigma outside 0..=100.
     #[error("noise sigma {0} is out of range (0..=100)")]
     Noise(f64),
+    /// A condition not in [`CONDITIONS`].
     #[error("unknown condition {0:?}; expected one of {CONDITIONS:?}")]
     Condition(String),
+    /// OpenCV failed while drawing.
     #[error("rendering failed: {0}")]
     Render(#[from] opencv::Error),
+    /// A model's template does not enrol (a defect in the models).
     #[error("simulator template {name} {face} does not enrol: {message}")]
-    Template { name: String, face: Face, message: String },
+    Template {
+        /// The model's type name.
+        name: String,
+        /// Its face.
+        face: Face,
+        /// Why it does not enrol.
+        message: String,
+    },
 }
 
 /// Renders scenes and templates of the built-in models.
@@ -80,6 +110,7 @@ pub struct Simulator {
 }
 
 impl Simulator {
+    /// A simulator of `cfg`'s frame size and seed.
     pub fn new(cfg: SimConfig) -> Result<Self, SimError> {
         if cfg.width < 320 || cfg.height < 240 {
             return Err(SimError::TooSmall { width: cfg.width, height: cfg.height });
@@ -105,6 +136,7 @@ impl Simulator {
         self.known.iter().map(|p| p.model.name).collect()
     }
 
+    /// The name of the model that is never enrolled (the "unknown" scenes' part).
     pub fn unknown_type_name(&self) -> &'static str {
         self.unknown.model.name
     }

@@ -7,29 +7,44 @@
 /// A 2-D primitive, as one or more closed polygons filled even-odd.
 #[derive(Debug, Clone)]
 pub enum Shape {
+    /// A disc.
     Circle {
+        /// Centre, mm.
         c: (f64, f64),
+        /// Radius, mm.
         r: f64,
     },
     /// Filled ring between two radii.
     Ring {
+        /// Centre, mm.
         c: (f64, f64),
+        /// Inner radius, mm.
         r_in: f64,
+        /// Outer radius, mm.
         r_out: f64,
     },
     /// A stadium: the set of points within `r` of the segment a-b.
     Capsule {
+        /// One end, mm.
         a: (f64, f64),
+        /// The other end, mm.
         b: (f64, f64),
+        /// Half the width, mm.
         r: f64,
     },
+    /// A polygon, mm (either winding).
     Poly(Vec<(f64, f64)>),
     /// Part of a ring between two angles (degrees, counter-clockwise as displayed).
     Sector {
+        /// Centre, mm.
         c: (f64, f64),
+        /// Inner radius, mm.
         r_in: f64,
+        /// Outer radius, mm.
         r_out: f64,
+        /// Start angle.
         from_deg: f64,
+        /// End angle.
         to_deg: f64,
     },
 }
@@ -45,20 +60,27 @@ pub enum Look {
     Blind,
 }
 
+/// A feature on one face of a model.
 #[derive(Debug, Clone)]
 pub struct Feature {
+    /// Where it is.
     pub shape: Shape,
+    /// How it shows.
     pub look: Look,
 }
 
+/// A part type the simulator renders: its material, through-holes and the features of each face.
 #[derive(Debug, Clone)]
 pub struct Model {
+    /// The type name it is enrolled under.
     pub name: &'static str,
     /// Union of these is the part's material ...
     pub material: Vec<Shape>,
     /// ... minus these through-holes.
     pub holes: Vec<Shape>,
+    /// Features seen face up.
     pub top: Vec<Feature>,
+    /// Features seen face down.
     pub bottom: Vec<Feature>,
     /// Width (mm) of the margin over which a forged part's rounded edge darkens towards its
     /// silhouette; 0 for a flat plate with a sharp edge.

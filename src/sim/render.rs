@@ -18,6 +18,7 @@ const SUB: f64 = 16.0;
 /// A model with its derived geometry.
 #[derive(Debug, Clone)]
 pub struct Prepared {
+    /// The model.
     pub model: Model,
     /// Material centroid of the face-up view, mm.
     pub centroid: (f64, f64),
@@ -28,12 +29,15 @@ pub struct Prepared {
 /// Where and how a part lies in a scene.
 #[derive(Debug, Clone, Copy)]
 pub struct Placement {
+    /// Which face lies up.
     pub face: Face,
     /// Counter-clockwise as displayed, degrees.
     pub angle_deg: f64,
     /// Where the material centroid lands, frame pixels.
     pub x: f64,
+    /// See `x`.
     pub y: f64,
+    /// Scale of the scene.
     pub px_per_mm: f64,
     /// Gray level of the bare material.
     pub gray: f64,
@@ -42,14 +46,19 @@ pub struct Placement {
 /// Scene-wide lighting and sensor.
 #[derive(Debug, Clone)]
 pub struct Lighting {
+    /// Factor on the part's and belt's light (1: nominal).
     pub exposure: f64,
     /// Relative brightness change across the frame (linear ramp), e.g. 0.1.
     pub gradient: f64,
+    /// Direction of the ramp, degrees.
     pub gradient_dir_deg: f64,
     /// Specular highlight: centre, radius (px), amplitude (gray levels); on parts only.
     pub glare: Option<(Pt, f64, f64)>,
+    /// Optical blur, pixels.
     pub blur_sigma: f64,
+    /// Gaussian sensor noise, gray levels.
     pub noise_sigma: f64,
+    /// Gray level of the bare belt.
     pub belt_gray: f64,
 }
 
@@ -99,6 +108,7 @@ fn outline(
 }
 
 impl Prepared {
+    /// The model with its centroid and radius computed.
     pub fn new(model: Model) -> Self {
         let (_, cx, cy) = material_moments(&model);
         let pts: Vec<(f64, f64)> = model.material.iter().flat_map(|s| s.contours()).flatten().collect();

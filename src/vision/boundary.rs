@@ -34,6 +34,7 @@ const STEP: f64 = 1.0;
 /// A refined outline.
 #[derive(Debug, Clone)]
 pub struct Refined {
+    /// The outline on the full frame, sub-pixel, frame pixels.
     pub outline: Vec<Pt>,
     /// Typical gray-level step across the outline (median over its points).
     pub contrast: f64,

@@ -76,6 +76,7 @@ pub struct ShapeModel {
 }
 
 impl ShapeModel {
+    /// The model of a template's outline with this centroid (template pixels).
     pub fn new(outline: &[Pt], centroid: Pt) -> Self {
         let mut vote: Vec<(Pt, usize, i32)> = oriented_points(outline).into_iter().map(|(p, a, t)| (centroid - p, a, t)).collect();
         vote.sort_by_key(|v| v.2);
@@ -96,7 +97,9 @@ impl ShapeModel {
 
 /// What the region offers as evidence.
 pub struct Region<'a> {
+    /// The frame's coarse stage (decimated, blurred frame for the edge tests).
     pub coarse: &'a Coarse,
+    /// The region.
     pub blob: &'a Blob,
     /// The region's refined outline, frame pixels.
     pub outline: &'a [Pt],
@@ -109,8 +112,11 @@ pub struct Region<'a> {
 /// A part found in a region.
 #[derive(Debug, Clone)]
 pub struct Found {
+    /// Index of the template in the library.
     pub entry: usize,
+    /// The registration at its pose.
     pub reg: Registration,
+    /// The outline tolerance used, template pixels.
     pub tolerance: f64,
     /// Length fraction of the template's outline explained by the image at the pose.
     pub support: f64,
@@ -128,6 +134,7 @@ pub struct Found {
 /// Everything found in a region.
 #[derive(Debug, Clone, Default)]
 pub struct Explained {
+    /// The parts found, best supported first.
     pub parts: Vec<Found>,
     /// Material of the region that no found part explains: (area in frame pixels, centroid).
     pub leftover: Vec<(f64, Pt)>,

@@ -11,8 +11,11 @@ use std::sync::Arc;
 /// A mean-removed signal in the frequency domain.
 #[derive(Clone)]
 pub struct Spectrum {
+    /// Mean of the signal (log r), before removal: gives the scale.
     pub mean: f64,
+    /// Sum of squares of the mean-removed signal.
     pub energy: f64,
+    /// The FFT of the mean-removed signal.
     pub bins: Vec<Complex<f64>>,
 }
 
@@ -48,14 +51,17 @@ impl std::fmt::Debug for Correlator {
 }
 
 impl Correlator {
+    /// A correlator of signals of `n` bins.
     pub fn new(n: usize) -> Self {
         let mut planner = FftPlanner::new();
         Self { n, fwd: planner.plan_fft_forward(n), inv: planner.plan_fft_inverse(n) }
     }
+    /// Bins of the signals it correlates.
     pub fn bins(&self) -> usize {
         self.n
     }
 
+    /// The spectrum of a signal of [`Correlator::bins`] samples.
     pub fn spectrum(&self, signal: &[f64]) -> Spectrum {
         assert_eq!(signal.len(), self.n, "signal length must equal the correlator's bins");
         let mean = signal.iter().sum::<f64>() / self.n as f64;

@@ -11,7 +11,9 @@ use super::{Face, Reason};
 /// A template named by type and face, as the text shows it ("bracket up").
 #[derive(Debug, Clone, PartialEq)]
 pub struct Named {
+    /// The part type's name, as enrolled.
     pub type_name: String,
+    /// Which face of it lies up.
     pub face: Face,
 }
 
@@ -24,60 +26,79 @@ impl fmt::Display for Named {
 /// What the estimator concluded about a part.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Verdict {
+    /// Every measure passed: the robot may pick it.
     Accept,
     /// The outline comes within 3 px of the frame's edge (bounds of the outline).
     AtBorder {
+        /// Top-left of the outline's bounds, frame pixels.
         lo: Pt,
+        /// Bottom-right of the outline's bounds, frame pixels.
         hi: Pt,
     },
     /// The region is larger than any enrolled part could be.
     TooLarge {
+        /// The region's area, px^2.
         area: f64,
     },
     /// No template's outline fits at least `need`; `merged` when the region is also larger
     /// than the closest template (several parts), which makes it touching rather than unknown.
     NoFit {
+        /// The least fit that names a type.
         need: f64,
+        /// The region is also larger than the closest template: several parts, not an unknown one.
         merged: bool,
     },
     /// The best fit is at a scale outside the accepted range.
     Scale {
+        /// The best fit's scale (part size over template size).
         scale: f64,
+        /// The accepted scales, inclusive.
         range: (f64, f64),
     },
     /// The outline runs onto something else (`extra`) or is partly hidden (`missing`).
     Foreign {
+        /// Fraction of the part's outline far from the template's.
         extra: f64,
+        /// Length fraction of the template's outline not seen.
         missing: f64,
+        /// The most either may be.
         limit: f64,
     },
     /// Another part found in the same region lies on this one.
     Covered {
+        /// The part that lies on it.
         by: Named,
     },
     /// It overlaps another part and the image does not tell which lies on top.
     OrderUnclear,
     /// Part of its outline is not seen: `support` of it is explained, `need` required.
     Unseen {
+        /// Explained length fraction of its outline.
         support: f64,
+        /// The least accepted.
         need: f64,
     },
     /// Another type or face explains the outline nearly as well and its line features are not
     /// clearly worse.
     Rival {
+        /// Who rivals it, and by how much.
         rival: Rival,
     },
     /// The line features agree less than the acceptance threshold.
     LowConfidence {
+        /// The line features' agreement.
         confidence: f64,
+        /// The least accepted (`accept_threshold`).
         threshold: f64,
     },
     /// Edge pixels of other material inside the gripper's keep-out footprint.
     NoClearance {
+        /// Edge pixels found inside the footprint.
         edge_px: usize,
     },
     /// Part-sized material beside the parts found in a region that no template explains.
     Unexplained {
+        /// Its area, px^2.
         area: f64,
     },
 }
@@ -146,11 +167,13 @@ impl fmt::Display for Verdict {
 /// The closest other type or face.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rival {
+    /// The rival template.
     pub name: Named,
     /// Its fit (support, in a region) at the tight tolerance.
     pub fit: f64,
     /// The best template's at the same tolerance, and that tolerance (px).
     pub best: f64,
+    /// The tight tolerance both were measured at, px.
     pub tolerance: f64,
     /// Its line features' confidence at its pose.
     pub confidence: f64,
@@ -159,15 +182,25 @@ pub struct Rival {
 /// How the part's outline fits its best template on the separate-part path.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OutlineFit {
+    /// The best template.
     pub best: Named,
+    /// The worse of `inliers` and `coverage`: the number the decision compares.
     pub fit: f64,
+    /// Fraction of the part's outline within the tolerance of the template's.
     pub inliers: f64,
+    /// Length fraction of the template's outline with part outline within the tolerance.
     pub coverage: f64,
+    /// Fraction of the part's outline far from the template's (other material).
     pub extra: f64,
+    /// Length fraction of the template's outline with nothing near it (hidden).
     pub missing: f64,
+    /// RMS distance of the inliers, px.
     pub rms: f64,
+    /// The outline tolerance at this frame's noise, px.
     pub tolerance: f64,
+    /// Correlation distance of the log-polar signals, before registration.
     pub corr_rms: f64,
+    /// Part size over template size.
     pub scale: f64,
     /// The next templates: registered (fit) or by correlation distance only.
     pub next: Vec<(Named, NextFit)>,
@@ -176,49 +209,66 @@ pub struct OutlineFit {
 /// A runner-up's measure.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum NextFit {
+    /// Registered: its fit.
     Fit(f64),
+    /// Not registered (its outline differs everywhere): its correlation distance.
     CorrRms(f64),
 }
 
 /// How a part found in a region of several fits (see [`super::clump`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct RegionFit {
+    /// The best template.
     pub best: Named,
     /// Length fraction of the template's outline the image explains, and the least accepted.
     pub support: f64,
+    /// The least support accepted.
     pub need: f64,
     /// Fraction of it on the region's outline, and the registration's RMS (px).
     pub coverage: f64,
+    /// RMS distance of the registration, px.
     pub rms: f64,
+    /// Part size over template size.
     pub scale: f64,
 }
 
 /// The line features' agreement and what it was computed with.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Lines {
+    /// The confidence, (1/N) sum gamma_k exp(-lambda err_k).
     pub confidence: f64,
+    /// Background noise sigma, gray levels.
     pub noise: f64,
+    /// Part-to-belt contrast along the outline, gray levels.
     pub contrast: f64,
+    /// The error weight, lambda0 (1 - alpha noise/contrast).
     pub lambda: f64,
 }
 
 /// Everything measured about a part, as far as the estimator got.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Evidence {
+    /// The separate-part path's outline fit.
     pub outline: Option<OutlineFit>,
+    /// The several-parts path's fit.
     pub region: Option<RegionFit>,
+    /// The line features' agreement, once a type and pose were found.
     pub lines: Option<Lines>,
+    /// The closest other type or face, when one came near.
     pub rival: Option<Rival>,
 }
 
 /// The verdict on a part and the evidence behind it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Decision {
+    /// What was concluded.
     pub verdict: Verdict,
+    /// What it was concluded from.
     pub evidence: Evidence,
 }
 
 impl Decision {
+    /// A decision from its parts.
     pub fn new(verdict: Verdict, evidence: Evidence) -> Self {
         Self { verdict, evidence }
     }

@@ -26,6 +26,7 @@ pub struct Blob {
     /// The region, filled and dilated by the closing radius, in decimated pixels from
     /// (`mask_origin`): tells which line segments belong to this part.
     pub mask: Mat,
+    /// Where the mask's (0, 0) lies in the decimated frame.
     pub mask_origin: Point,
 }
 
@@ -82,6 +83,7 @@ pub struct Coarse {
     pub blurred: Mat,
     /// Canny edges of the decimated frame (input of the fast line detector).
     pub edges: Mat,
+    /// Part-sized regions.
     pub blobs: Vec<Blob>,
     /// Separate pieces of material too small to be any part (bolts, washers, chips): at least
     /// [`DetectParams::min_debris_area`], below `min_area`.
@@ -91,8 +93,11 @@ pub struct Coarse {
 /// Parameters of the coarse stage.
 #[derive(Debug, Clone)]
 pub struct DetectParams {
+    /// Decimation factor (reduced for small frames, see [`effective_factor`]).
     pub factor: usize,
+    /// Gaussian blur on the decimated frame, decimated pixels.
     pub blur_sigma: f64,
+    /// Canny's low threshold as a fraction of the automatic high one.
     pub canny_low_ratio: f64,
     /// Diameter of the closing element in decimated pixels (bridges gaps in the outer edge).
     pub closing: i32,

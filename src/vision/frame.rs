@@ -13,21 +13,54 @@ pub const MIN_SIDE: usize = 32;
 /// Why a frame cannot be estimated.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum FrameError {
+    /// No pixels.
     #[error("empty frame (0 x 0 pixels)")]
     Empty,
+    /// Smaller than the estimator can work with.
     #[error("frame is {width} x {height} pixels; at least {MIN_SIDE} x {MIN_SIDE} is needed")]
-    TooSmall { width: usize, height: usize },
+    TooSmall {
+        /// Its width, pixels.
+        width: usize,
+        /// Its height, pixels.
+        height: usize,
+    },
+    /// A pixel layout other than gray, BGR or BGRA.
     #[error("frame has {channels} channels; expected 1 (gray), 3 (BGR) or 4 (BGRA)")]
-    Channels { channels: i32 },
+    Channels {
+        /// Channels per pixel.
+        channels: i32,
+    },
+    /// A sample type other than 8 or 16 bits unsigned.
     #[error("frame pixel depth {depth} is not supported; expected 8-bit or 16-bit unsigned")]
-    Depth { depth: String },
+    Depth {
+        /// OpenCV's name of it.
+        depth: String,
+    },
+    /// Fewer bytes than width x height.
     #[error("frame buffer holds {len} bytes; {width} x {height} needs {needed}")]
-    BufferSize { len: usize, width: usize, height: usize, needed: usize },
+    BufferSize {
+        /// Bytes given.
+        len: usize,
+        /// Width, pixels.
+        width: usize,
+        /// Height, pixels.
+        height: usize,
+        /// Bytes needed.
+        needed: usize,
+    },
     /// The configured region of interest does not fit the frame the camera delivered.
     #[error(
         "region of interest [x, y, w, h] = {roi:?} does not fit the {width} x {height} frame (it needs x + w <= {width}, y + h <= {height} and w, h >= {MIN_SIDE})"
     )]
-    Roi { roi: [usize; 4], width: usize, height: usize },
+    Roi {
+        /// The configured `[x, y, width, height]`.
+        roi: [usize; 4],
+        /// The frame's width.
+        width: usize,
+        /// The frame's height.
+        height: usize,
+    },
+    /// OpenCV refused the frame (its message).
     #[error("OpenCV failed on the frame: {0}")]
     OpenCv(String),
 }
@@ -67,12 +100,15 @@ impl<'a> GrayView<'a> {
         }
         Ok(Self { data, width, height })
     }
+    /// Width, pixels.
     pub fn width(&self) -> usize {
         self.width
     }
+    /// Height, pixels.
     pub fn height(&self) -> usize {
         self.height
     }
+    /// Row-major pixels, `width` per row, no padding.
     pub fn data(&self) -> &'a [u8] {
         self.data
     }
@@ -111,8 +147,11 @@ impl<'a> GrayView<'a> {
 /// An owned 8-bit gray frame.
 #[derive(Clone, PartialEq)]
 pub struct GrayImage {
+    /// Row-major pixels, `width` per row, no padding.
     pub data: Vec<u8>,
+    /// Width, pixels.
     pub width: usize,
+    /// Height, pixels.
     pub height: usize,
 }
 
@@ -123,9 +162,11 @@ impl std::fmt::Debug for GrayImage {
 }
 
 impl GrayImage {
+    /// An image of one gray level.
     pub fn new(width: usize, height: usize, fill: u8) -> Self {
         Self { data: vec![fill; width * height], width, height }
     }
+    /// A borrowed view, after checking the buffer holds width x height bytes.
     pub fn view(&self) -> Result<GrayView<'_>, FrameError> {
         GrayView::new(&self.data, self.width, self.height)
     }

@@ -9,23 +9,30 @@ use std::f64::consts::PI;
 /// A point or vector in pixel coordinates.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Pt {
+    /// Horizontal, to the right.
     pub x: f64,
+    /// Vertical, downwards (image rows).
     pub y: f64,
 }
 
 impl Pt {
+    /// A point from its coordinates.
     pub const fn new(x: f64, y: f64) -> Self {
         Self { x, y }
     }
+    /// Euclidean length.
     pub fn norm(self) -> f64 {
         (self.x * self.x + self.y * self.y).sqrt()
     }
+    /// Dot product.
     pub fn dot(self, o: Pt) -> f64 {
         self.x * o.x + self.y * o.y
     }
+    /// z of the cross product (positive: `o` lies clockwise as displayed, counter-clockwise in y-down).
     pub fn cross(self, o: Pt) -> f64 {
         self.x * o.y - self.y * o.x
     }
+    /// The vector times `k`.
     pub fn scale(self, k: f64) -> Pt {
         Pt::new(self.x * k, self.y * k)
     }
@@ -71,19 +78,26 @@ pub fn angle_diff_deg(a: f64, b: f64) -> f64 {
 /// `p = to + scale * R(angle) * (q - from)`, R counter-clockwise as displayed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Similarity {
+    /// The template point `from` maps to.
     pub from: Pt,
+    /// Where it lands in the frame.
     pub to: Pt,
+    /// Rotation, counter-clockwise as displayed.
     pub angle_rad: f64,
+    /// Frame pixels per template pixel.
     pub scale: f64,
 }
 
 impl Similarity {
+    /// Template pixels to frame pixels.
     pub fn apply(&self, q: Pt) -> Pt {
         self.to + rotate_display(q - self.from, self.angle_rad).scale(self.scale)
     }
+    /// Frame pixels to template pixels.
     pub fn invert(&self, p: Pt) -> Pt {
         self.from + rotate_display(p - self.to, -self.angle_rad).scale(1.0 / self.scale)
     }
+    /// The rotation in degrees, wrapped into [0, 360).
     pub fn angle_deg(&self) -> f64 {
         wrap_deg(self.angle_rad.to_degrees())
     }
@@ -119,6 +133,7 @@ impl Affine {
         let t = Pt::new(to.x - (m[0] * from.x + m[1] * from.y), to.y - (m[2] * from.x + m[3] * from.y));
         Self { m, t }
     }
+    /// Maps a point.
     pub fn apply(&self, q: Pt) -> Pt {
         Pt::new(self.m[0] * q.x + self.m[1] * q.y + self.t.x, self.m[2] * q.x + self.m[3] * q.y + self.t.y)
     }

@@ -23,18 +23,24 @@ use super::geometry::{Pt, line_angle_between};
 /// A line segment in frame pixels, with the width of the LSD support region.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Segment {
+    /// One end.
     pub a: Pt,
+    /// The other end.
     pub b: Pt,
+    /// Width of the detector's support region, pixels.
     pub width: f64,
 }
 
 impl Segment {
+    /// Length, pixels.
     pub fn len(&self) -> f64 {
         (self.b - self.a).norm()
     }
+    /// Whether both ends coincide.
     pub fn is_empty(&self) -> bool {
         self.len() == 0.0
     }
+    /// The midpoint.
     pub fn mid(&self) -> Pt {
         (self.a + self.b).scale(0.5)
     }

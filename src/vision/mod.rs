@@ -41,11 +41,14 @@ use geometry::{area_centroid, bounds};
 /// Which side of the part faces the camera.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Face {
+    /// The face enrolled as "up" (FACE 1).
     Up,
+    /// The other face (FACE 2).
     Down,
 }
 
 impl Face {
+    /// "up" or "down", as the KB and the log spell it.
     pub fn as_str(self) -> &'static str {
         match self {
             Face::Up => "up",
@@ -81,14 +84,23 @@ impl std::fmt::Display for Face {
 /// Why a part was not accepted. The numeric codes are the register map's REASON values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Reason {
+    /// Accepted (0).
     Ok,
+    /// No part in the frame: the one result of an empty belt (1).
     NoPart,
+    /// No template fits well enough (2).
     UnknownType,
+    /// The line features agree less than the threshold (3).
     LowConfidence,
+    /// Another type or face fits nearly as well (4).
     Ambiguous,
+    /// Touching or overlapping parts that cannot be told apart (5).
     Touching,
+    /// Not the EXPECTED_TYPE the PLC asked for (6).
     WrongType,
+    /// No usable frame: the result of a camera or frame fault (7).
     FrameError,
+    /// Cut by the frame's edge (8).
     AtBorder,
     /// Another part lies partly on this one: grasping it would drag the one on top.
     Covered,
@@ -97,6 +109,7 @@ pub enum Reason {
 }
 
 impl Reason {
+    /// Every reason, in code order.
     pub const ALL: [Reason; 11] = [
         Reason::Ok,
         Reason::NoPart,
@@ -110,9 +123,11 @@ impl Reason {
         Reason::Covered,
         Reason::NoClearance,
     ];
+    /// The REASON register's value.
     pub fn code(self) -> u16 {
         self as u16
     }
+    /// The reason as the log and the page write it.
     pub fn as_str(self) -> &'static str {
         match self {
             Reason::Ok => "ok",
@@ -142,7 +157,9 @@ impl std::fmt::Display for Reason {
 pub struct Params {
     /// Frame pixels per pixel of the decimated frame the coarse stages run on.
     pub coarse_factor: usize,
+    /// Gaussian blur before Canny, decimated pixels (the study's 1.5).
     pub blur_sigma: f64,
+    /// Canny's low threshold as a fraction of the automatic high one (the study's 0.4).
     pub canny_low_ratio: f64,
     /// Closing element diameter, decimated pixels.
     pub closing: i32,
@@ -184,6 +201,7 @@ pub struct Params {
     pub min_support: f64,
     /// Confidence: lambda = lambda0 (1 - alpha noise).
     pub lambda0: f64,
+    /// Noise's weight in lambda (the study's 0.5).
     pub alpha: f64,
     /// Confidence at or above which a part is accepted.
     pub accept_threshold: f64,
@@ -239,14 +257,21 @@ impl Params {
 /// Wall time of each stage, milliseconds (summed over the frame's parts).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Timings {
+    /// Coarse regions on the decimated frame.
     pub detect: f64,
+    /// Outline refinement on the full frame.
     pub boundary: f64,
+    /// Line segments.
     pub lines: f64,
+    /// Log-polar correlation against every template.
     pub correlate: f64,
+    /// ICP registration of the candidates.
     pub register: f64,
+    /// Line-feature confidence and the rival test.
     pub confidence: f64,
     /// Regions of several parts: voting, verification, overlap order.
     pub clump: f64,
+    /// The whole estimate.
     pub total: f64,
 }
 
@@ -257,15 +282,19 @@ pub struct PartEstimate {
     pub type_name: Option<String>,
     /// 0 when `type_name` is None.
     pub type_id: u16,
+    /// Which face lies up; None with `type_name`.
     pub face: Option<Face>,
     /// Rotation carrying the template (of that type and face) onto the part, degrees in [0, 360).
     pub angle_deg: f64,
     /// The template's origin in the frame (the part's centroid for centred templates), pixels.
     pub x: f64,
+    /// See `x`.
     pub y: f64,
     /// Part size relative to its template.
     pub scale: f64,
+    /// 0..1: the line features' agreement with the template at the pose.
     pub confidence: f64,
+    /// The robot may pick it (the verdict is [`Verdict::Accept`]).
     pub accepted: bool,
     /// `decision`'s verdict as the PLC's REASON (kept beside it: every consumer reads it).
     pub reason: Reason,
@@ -275,9 +304,13 @@ pub struct PartEstimate {
     pub fit: f64,
     /// Best template (index into [`Estimator::templates`]) and its pose, when one was registered.
     pub matched: Option<(usize, Similarity)>,
+    /// The refined outline, frame pixels.
     pub outline: Vec<Pt>,
+    /// The orientation axis (longest-supported segment), if any segment was found.
     pub axis: Option<Segment>,
+    /// Line segments inside the part.
     pub segments: Vec<Segment>,
+    /// The LFI descriptor: (log r, phi) of the segments in the axis-aligned frame.
     pub descriptor: Vec<LineFeature>,
 }
 
@@ -312,22 +345,33 @@ impl PartEstimate {
 /// The estimate for one frame.
 #[derive(Debug, Clone)]
 pub struct FrameEstimate {
+    /// One per part region, in detection order.
     pub parts: Vec<PartEstimate>,
     /// Pieces of material in the frame too small or too unlike any part to be one (bolts,
     /// washers, chips): never part results, counted so that a line can blow them off.
     pub debris: usize,
     /// Robust standard deviation of the background's pixel noise, gray levels.
     pub noise_sigma: f64,
+    /// Wall time per stage.
     pub timings: Timings,
 }
 
 /// Why an estimator cannot be built.
 #[derive(Debug, thiserror::Error)]
 pub enum EstimatorError {
+    /// No template to compare with.
     #[error("the knowledge base has no templates; enroll at least one type and face")]
     Empty,
+    /// A parameter out of its range.
     #[error("parameter {name} = {value} is out of range ({expected})")]
-    Param { name: &'static str, value: String, expected: &'static str },
+    Param {
+        /// The parameter.
+        name: &'static str,
+        /// Its value.
+        value: String,
+        /// What it must be.
+        expected: &'static str,
+    },
 }
 
 /// Estimates part poses in frames against a fixed set of templates.
@@ -348,6 +392,7 @@ struct Candidate {
 }
 
 impl Estimator {
+    /// An estimator for these templates (every type and face enrolled) with these parameters.
     pub fn new(templates: &[Template], params: Params) -> Result<Self, EstimatorError> {
         if templates.is_empty() {
             return Err(EstimatorError::Empty);
@@ -372,9 +417,11 @@ impl Estimator {
         Ok(Self { lib: Library::new(templates, params.signal_bins), params, min_area, min_debris_area, max_template_area: largest })
     }
 
+    /// The parameters in force.
     pub fn params(&self) -> &Params {
         &self.params
     }
+    /// The templates, in the order [`PartEstimate::matched`] indexes them.
     pub fn templates(&self) -> impl Iterator<Item = &Template> {
         self.lib.entries.iter().map(|e| &e.template)
     }

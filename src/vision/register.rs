@@ -79,6 +79,7 @@ pub struct OutlineIndex {
 }
 
 impl OutlineIndex {
+    /// An index of this closed outline (template pixels).
     pub fn new(outline: &[Pt]) -> Self {
         let n = outline.len();
         let (area, _) = super::geometry::area_centroid(outline);
@@ -101,6 +102,7 @@ impl OutlineIndex {
         }
     }
 
+    /// The outline indexed.
     pub fn outline(&self) -> &[Pt] {
         &self.pts
     }

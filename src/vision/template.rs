@@ -15,11 +15,15 @@ use super::{Face, Params};
 /// What the estimator knows about one face of one part type.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Template {
+    /// The part type's name.
     pub type_name: String,
     /// Numeric id served to the PLC (1..=65535; 0 means "no type").
     pub type_id: u16,
+    /// Which face of the part the template shows.
     pub face: Face,
+    /// Width of the image it was enrolled from.
     pub image_width: usize,
+    /// Height of the image it was enrolled from.
     pub image_height: usize,
     /// The point reported as the part's position, template pixels. By default the centre of the
     /// template image: like a vision tool's model origin, it is rigidly attached to the part, so a
@@ -46,21 +50,31 @@ pub struct Template {
 /// One circle of a gripper's keep-out footprint, in the template's pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct KeepOut {
+    /// Centre.
     pub c: Pt,
+    /// Radius.
     pub r: f64,
 }
 
 /// Why an image cannot become a template.
 #[derive(Debug, thiserror::Error)]
 pub enum TemplateError {
+    /// The template image is not a usable frame.
     #[error(transparent)]
     Frame(#[from] FrameError),
+    /// Nothing in the image stands out as a part.
     #[error("no part found in the template image (nothing larger than {min_area:.0} px^2 stands out from the background)")]
-    NoPart { min_area: f64 },
+    NoPart {
+        /// The least area of a part, px^2.
+        min_area: f64,
+    },
+    /// The part reaches the image's edge.
     #[error("the part in the template image touches the image border; crop the template with a margin around the part")]
     AtBorder,
+    /// Type id 0 (it means "no type").
     #[error("type id {0} is reserved; use 1..=65535")]
     ReservedId(u16),
+    /// The type name is empty.
     #[error("type name is empty")]
     EmptyName,
 }
@@ -130,9 +144,13 @@ impl Template {
 /// A template prepared for matching: its signal's spectrum and its outline's spatial index.
 #[derive(Debug, Clone)]
 pub struct Compiled {
+    /// The template.
     pub template: Template,
+    /// Its r(phi) signal in the frequency domain.
     pub spectrum: Spectrum,
+    /// Its outline's nearest-segment index.
     pub index: OutlineIndex,
+    /// Diagonal of its outline's bounding box, px.
     pub diag: f64,
     /// Voting and verification points for regions holding several parts.
     pub shape: ShapeModel,
@@ -141,11 +159,14 @@ pub struct Compiled {
 /// All enrolled templates, compiled once when the estimator is built.
 #[derive(Debug, Clone)]
 pub struct Library {
+    /// Every template, in enrolment order.
     pub entries: Vec<Compiled>,
+    /// The correlator sized to the signals.
     pub correlator: Correlator,
 }
 
 impl Library {
+    /// Compiles `templates` with signals of `bins` bins.
     pub fn new(templates: &[Template], bins: usize) -> Self {
         let correlator = Correlator::new(bins);
         let entries = templates
