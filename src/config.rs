@@ -602,223 +602,256 @@ impl Config {
     }
 
     /// Validates `text` as the contents of `path` (which names it in errors and anchors its
-    /// relative paths).
+    /// relative paths). Each section has its own builder below, as a command line hands each
+    /// concern to its own: this only sequences them and checks what spans sections.
     pub fn from_toml(text: &str, path: &Path) -> Result<Self, ConfigError> {
         let raw: raw::File = toml::from_str(text).map_err(|e| ConfigError::Syntax { path: path.into(), message: e.to_string() })?;
         let c = Check { path };
         let base = path.parent().unwrap_or(Path::new("."));
-        let m = &raw.modbus;
-        let bind: SocketAddr = m.bind.parse().map_err(|_| c.err("modbus.bind", format!("{:?}", m.bind), "is not an address:port"))?;
-        let write_allow = m
-            .write_allow
-            .iter()
-            .enumerate()
-            .map(|(i, s)| {
-                s.parse::<IpAddr>().map_err(|_| c.err(format!("modbus.write_allow[{i}]"), format!("{s:?}"), "is not an IP address"))
-            })
-            .collect::<Result<Vec<_>, _>>()?;
-        let modbus = ModbusConfig {
-            bind,
-            max_connections: c.int("modbus.max_connections", m.max_connections, 1, 1024)?,
-            idle_timeout: Duration::from_secs_f64(c.real("modbus.idle_timeout_s", m.idle_timeout_s, 0.1, 86400.0)?),
-            frame_timeout: Duration::from_secs_f64(c.real("modbus.frame_timeout_s", m.frame_timeout_s, 0.05, 60.0)?),
-            write_allow,
-        };
+        let modbus = modbus_of(&c, &raw.modbus)?;
         let queue_depth = c.int("result.queue_depth", raw.result.queue_depth, 1, 1000)?;
         let accept_threshold = c.real("result.accept_threshold", raw.result.accept_threshold, 0.0, 1.0)?;
         let levels = ["error", "warn", "info", "debug", "trace"];
         if !levels.contains(&raw.log.level.as_str()) {
             return Err(c.err("log.level", format!("{:?}", raw.log.level), format!("is not one of {levels:?}")));
         }
-        let http = match &raw.http {
-            h if !h.enabled => None,
-            h => {
-                let bind = h.bind.parse().map_err(|_| c.err("http.bind", format!("{:?}", h.bind), "is not an address:port"))?;
-                if let Some(t) = &h.token
-                    && t.len() < 8
-                {
-                    return Err(c.err("http.token", "(hidden)", "is shorter than 8 characters"));
-                }
-                Some(HttpConfig {
-                    bind,
-                    token: h.token.clone(),
-                    max_connections: c.int("http.max_connections", h.max_connections, 1, 512)?,
-                    max_in_flight: c.int("http.max_in_flight", h.max_in_flight, 1, 256)?,
-                    header_timeout: Duration::from_secs_f64(c.real("http.header_timeout_s", h.header_timeout_s, 0.1, 300.0)?),
-                    request_timeout: Duration::from_secs_f64(c.real("http.request_timeout_s", h.request_timeout_s, 0.1, 300.0)?),
-                })
-            }
-        };
+        let http = http_of(&c, &raw.http)?;
         if raw.camera.is_empty() {
             return Err(c.err("camera", "[]", "must list at least one [[camera]]"));
         }
         let mut cameras: Vec<CameraConfig> = Vec::new();
         for (i, rc) in raw.camera.iter().enumerate() {
-            let k = |f: &str| format!("camera[{i}].{f}");
-            let unit_id: u8 = c.int(&k("unit_id"), rc.unit_id, 1, 247)?;
-            if cameras.iter().any(|o| o.unit_id == unit_id) {
-                return Err(c.err(k("unit_id"), unit_id, "is used by another camera"));
+            let camera = camera_of(&c, i, rc, base, accept_threshold)?;
+            if cameras.iter().any(|o| o.unit_id == camera.unit_id) {
+                return Err(c.err(format!("camera[{i}].unit_id"), camera.unit_id, "is used by another camera"));
             }
-            let s = &rc.source;
-            let only = |allowed: &[&str]| -> Result<(), ConfigError> {
-                let given = [
-                    ("seed", s.seed.is_some()),
-                    ("width", s.width.is_some()),
-                    ("height", s.height.is_some()),
-                    ("noise", s.noise.is_some()),
-                    ("scenes", s.scenes.is_some()),
-                    ("interval_ms", s.interval_ms.is_some()),
-                    ("path", s.path.is_some()),
-                    ("settle_ms", s.settle_ms.is_some()),
-                    ("timeout_ms", s.timeout_ms.is_some()),
-                    ("uri", s.uri.is_some()),
-                ];
-                for (name, set) in given {
-                    if set && !allowed.contains(&name) {
-                        return Err(c.err(k(&format!("source.{name}")), "(set)", format!("does not apply to kind = {:?}", s.kind)));
-                    }
-                }
-                Ok(())
-            };
-            let source = match s.kind.as_str() {
-                "sim" => {
-                    only(&["seed", "width", "height", "noise", "scenes", "interval_ms"])?;
-                    SourceConfig::Sim {
-                        seed: c.int(&k("source.seed"), s.seed.unwrap_or(1), 0, i64::MAX)?,
-                        width: c.int(&k("source.width"), s.width.unwrap_or(2592), 320, 8192)?,
-                        height: c.int(&k("source.height"), s.height.unwrap_or(1944), 240, 8192)?,
-                        noise: s.noise.map(|n| c.real(&k("source.noise"), n, 0.0, 100.0)).transpose()?,
-                        scenes: c.int(&k("source.scenes"), s.scenes.unwrap_or(8), 1, 256)?,
-                        interval: Duration::from_millis(c.int(&k("source.interval_ms"), s.interval_ms.unwrap_or(500), 0, 3_600_000)?),
-                    }
-                }
-                "dir" => {
-                    only(&["path", "settle_ms", "timeout_ms"])?;
-                    let p = s.path.as_ref().ok_or_else(|| c.err(k("source.path"), "(missing)", "is required for kind = \"dir\""))?;
-                    SourceConfig::Dir {
-                        path: base.join(p),
-                        settle: Duration::from_millis(c.int(&k("source.settle_ms"), s.settle_ms.unwrap_or(200), 0, 60_000)?),
-                        timeout: Duration::from_millis(c.int(&k("source.timeout_ms"), s.timeout_ms.unwrap_or(5000), 1, 3_600_000)?),
-                    }
-                }
-                "video" => {
-                    only(&["uri", "timeout_ms"])?;
-                    let uri = s
-                        .uri
-                        .clone()
-                        .filter(|u| !u.trim().is_empty())
-                        .ok_or_else(|| c.err(k("source.uri"), "(missing)", "is required for kind = \"video\""))?;
-                    SourceConfig::Video {
-                        uri,
-                        timeout: Duration::from_millis(c.int(&k("source.timeout_ms"), s.timeout_ms.unwrap_or(5000), 1, 3_600_000)?),
-                    }
-                }
-                other => return Err(c.err(k("source.kind"), format!("{other:?}"), "is not one of \"sim\", \"dir\", \"video\"")),
-            };
-            let trigger = rc.trigger;
-            let kb = kb_source(&c, &k, rc.kb.as_deref(), rc.kb_from_simulator, &source, base)?;
-            let roi = roi_of(&c, &k, rc.roi.as_deref(), &source)?;
-            let calibration =
-                calibration_of(&c, &k, rc.calibration.as_ref(), rc.mm_per_px)?.unwrap_or(CalibrationConfig::Scale { mm_per_px: 1.0 });
-            let mut jobs: Vec<JobConfig> = Vec::new();
-            for (j, rj) in rc.job.iter().enumerate() {
-                let jk = |f: &str| k(&format!("job[{j}].{f}"));
-                let id: u16 = c.int(&jk("id"), rj.id, 1, 999)?;
-                if jobs.iter().any(|o| o.id == id) {
-                    return Err(c.err(jk("id"), id, "is used by another job of this camera"));
-                }
-                let kb = match kb_source(&c, &|f| jk(f), rj.kb.as_deref(), rj.kb_from_simulator, &source, base)? {
-                    Some(kb) => kb,
-                    None => kb
-                        .clone()
-                        .ok_or_else(|| c.err(jk("kb"), "(missing)", "is required: the camera has no kb for its jobs to start from"))?,
-                };
-                jobs.push(JobConfig {
-                    id,
-                    name: rj.name.clone().unwrap_or_else(|| format!("job {id}")),
-                    kb,
-                    expected_type: rj.expected_type.map(|t| c.int(&jk("expected_type"), t, 0, 65535)).transpose()?,
-                    accept_threshold: rj
-                        .accept_threshold
-                        .map(|t| c.real(&jk("accept_threshold"), t, 0.0, 1.0))
-                        .transpose()?
-                        .unwrap_or(accept_threshold),
-                    roi: roi_of(&c, &|f| jk(f), rj.roi.as_deref(), &source)?.or(roi),
-                    calibration: calibration_of(&c, &|f| jk(f), rj.calibration.as_ref(), rj.mm_per_px)?
-                        .unwrap_or_else(|| calibration.clone()),
-                });
-            }
-            if jobs.is_empty() {
-                let kb = kb.ok_or_else(|| c.err(k("kb"), "(missing)", "is required (or kb_from_simulator = true with a sim source)"))?;
-                jobs.push(JobConfig { id: 1, name: "job 1".into(), kb, expected_type: None, accept_threshold, roi, calibration });
-            }
-            let start_job = match rc.start_job {
-                Some(v) => {
-                    let id: u16 = c.int(&k("start_job"), v, 1, 999)?;
-                    if !jobs.iter().any(|j| j.id == id) {
-                        let ids: Vec<String> = jobs.iter().map(|j| j.id.to_string()).collect();
-                        return Err(c.err(k("start_job"), id, format!("is not a configured job (jobs: {})", ids.join(", "))));
-                    }
-                    id
-                }
-                None => jobs.iter().map(|j| j.id).min().unwrap_or(1),
-            };
-            let word_order = rc.float_word_order;
-            let robot = match &rc.robot {
-                None => None,
-                Some(r) => {
-                    let rk = |f: &str| k(&format!("robot.{f}"));
-                    if let Err(problem) = check_host_port(&r.address) {
-                        return Err(c.err(rk("address"), format!("{:?}", r.address), problem));
-                    }
-                    let output_function = c.int(&rk("output_function"), r.output_function, 3, 4)?;
-                    let input_words_at: u16 = c.int(&rk("input_words_at"), r.input_words_at, 0, 65535 - 9)?; // words 0..=9
-                    let output_words_at: u16 = c.int(&rk("output_words_at"), r.output_words_at, 0, 65535 - 1)?;
-                    Some(RobotConfig {
-                        address: r.address.clone(),
-                        unit_id: c.int(&rk("unit_id"), r.unit_id, 0, 255)?,
-                        input_words_at,
-                        output_words_at,
-                        output_function,
-                        poll: Duration::from_millis(c.int(&rk("poll_ms"), r.poll_ms, 1, 60_000)?),
-                        ack_timeout: Duration::from_secs_f64(c.real(&rk("ack_timeout_s"), r.ack_timeout_s, 0.05, 86400.0)?),
-                        send: r.send,
-                        queue_depth: c.int(&rk("queue_depth"), r.queue_depth, 1, 10_000)?,
-                        word_order,
-                    })
-                }
-            };
-            let picking_order = rc.picking_order;
-            let archive = match &rc.archive {
-                None => None,
-                Some(a) => {
-                    if a.dir.trim().is_empty() {
-                        return Err(c.err(k("archive.dir"), "\"\"", "is empty: name the folder frames are kept in"));
-                    }
-                    Some(ArchiveConfig {
-                        dir: base.join(&a.dir),
-                        save: a.save,
-                        max_files: c.int(&k("archive.max_files"), a.max_files, 1, 10_000_000)?,
-                        max_bytes: (c.real(&k("archive.max_mb"), a.max_mb, 1.0, 1e8)? * 1e6) as u64,
-                    })
-                }
-            };
-            cameras.push(CameraConfig {
-                unit_id,
-                name: rc.name.clone().unwrap_or_else(|| format!("camera{unit_id}")),
-                source,
-                trigger,
-                online: rc.online,
-                jobs,
-                start_job,
-                word_order,
-                robot,
-                picking_order,
-                archive,
-            });
+            cameras.push(camera);
         }
         Ok(Config { path: path.to_path_buf(), modbus, queue_depth, accept_threshold, log_level: raw.log.level.clone(), http, cameras })
     }
+}
+
+/// `[modbus]`.
+fn modbus_of(c: &Check<'_>, m: &raw::Modbus) -> Result<ModbusConfig, ConfigError> {
+    let bind: SocketAddr = m.bind.parse().map_err(|_| c.err("modbus.bind", format!("{:?}", m.bind), "is not an address:port"))?;
+    let write_allow = m
+        .write_allow
+        .iter()
+        .enumerate()
+        .map(|(i, s)| s.parse::<IpAddr>().map_err(|_| c.err(format!("modbus.write_allow[{i}]"), format!("{s:?}"), "is not an IP address")))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(ModbusConfig {
+        bind,
+        max_connections: c.int("modbus.max_connections", m.max_connections, 1, 1024)?,
+        idle_timeout: Duration::from_secs_f64(c.real("modbus.idle_timeout_s", m.idle_timeout_s, 0.1, 86400.0)?),
+        frame_timeout: Duration::from_secs_f64(c.real("modbus.frame_timeout_s", m.frame_timeout_s, 0.05, 60.0)?),
+        write_allow,
+    })
+}
+
+/// `[http]`; None when it is disabled.
+fn http_of(c: &Check<'_>, h: &raw::Http) -> Result<Option<HttpConfig>, ConfigError> {
+    if !h.enabled {
+        return Ok(None);
+    }
+    let bind = h.bind.parse().map_err(|_| c.err("http.bind", format!("{:?}", h.bind), "is not an address:port"))?;
+    if let Some(t) = &h.token
+        && t.len() < 8
+    {
+        return Err(c.err("http.token", "(hidden)", "is shorter than 8 characters"));
+    }
+    Ok(Some(HttpConfig {
+        bind,
+        token: h.token.clone(),
+        max_connections: c.int("http.max_connections", h.max_connections, 1, 512)?,
+        max_in_flight: c.int("http.max_in_flight", h.max_in_flight, 1, 256)?,
+        header_timeout: Duration::from_secs_f64(c.real("http.header_timeout_s", h.header_timeout_s, 0.1, 300.0)?),
+        request_timeout: Duration::from_secs_f64(c.real("http.request_timeout_s", h.request_timeout_s, 0.1, 300.0)?),
+    }))
+}
+
+/// One `[[camera]]` (the `i`-th, as its keys are named), with `accept_threshold` from
+/// `[result]` as its jobs' default.
+fn camera_of(c: &Check<'_>, i: usize, rc: &raw::Camera, base: &Path, accept_threshold: f64) -> Result<CameraConfig, ConfigError> {
+    let k = |f: &str| format!("camera[{i}].{f}");
+    let unit_id: u8 = c.int(&k("unit_id"), rc.unit_id, 1, 247)?;
+    let source = source_of(c, &k, &rc.source, base)?;
+    let kb = kb_source(c, &k, rc.kb.as_deref(), rc.kb_from_simulator, &source, base)?;
+    let roi = roi_of(c, &k, rc.roi.as_deref(), &source)?;
+    let calibration = calibration_of(c, &k, rc.calibration.as_ref(), rc.mm_per_px)?.unwrap_or(CalibrationConfig::Scale { mm_per_px: 1.0 });
+    let jobs = jobs_of(c, &k, rc, &source, base, JobDefaults { kb, accept_threshold, roi, calibration })?;
+    let start_job = match rc.start_job {
+        Some(v) => {
+            let id: u16 = c.int(&k("start_job"), v, 1, 999)?;
+            if !jobs.iter().any(|j| j.id == id) {
+                let ids: Vec<String> = jobs.iter().map(|j| j.id.to_string()).collect();
+                return Err(c.err(k("start_job"), id, format!("is not a configured job (jobs: {})", ids.join(", "))));
+            }
+            id
+        }
+        None => jobs.iter().map(|j| j.id).min().unwrap_or(1),
+    };
+    let word_order = rc.float_word_order;
+    let robot = rc.robot.as_ref().map(|r| robot_of(c, &|f| k(&format!("robot.{f}")), r, word_order)).transpose()?;
+    let archive = match &rc.archive {
+        None => None,
+        Some(a) => {
+            if a.dir.trim().is_empty() {
+                return Err(c.err(k("archive.dir"), "\"\"", "is empty: name the folder frames are kept in"));
+            }
+            Some(ArchiveConfig {
+                dir: base.join(&a.dir),
+                save: a.save,
+                max_files: c.int(&k("archive.max_files"), a.max_files, 1, 10_000_000)?,
+                max_bytes: (c.real(&k("archive.max_mb"), a.max_mb, 1.0, 1e8)? * 1e6) as u64,
+            })
+        }
+    };
+    Ok(CameraConfig {
+        unit_id,
+        name: rc.name.clone().unwrap_or_else(|| format!("camera{unit_id}")),
+        source,
+        trigger: rc.trigger,
+        online: rc.online,
+        jobs,
+        start_job,
+        word_order,
+        robot,
+        picking_order: rc.picking_order,
+        archive,
+    })
+}
+
+/// `[camera.source]`: only the keys of its `kind` may be set.
+fn source_of(c: &Check<'_>, k: &dyn Fn(&str) -> String, s: &raw::Source, base: &Path) -> Result<SourceConfig, ConfigError> {
+    let only = |allowed: &[&str]| -> Result<(), ConfigError> {
+        let given = [
+            ("seed", s.seed.is_some()),
+            ("width", s.width.is_some()),
+            ("height", s.height.is_some()),
+            ("noise", s.noise.is_some()),
+            ("scenes", s.scenes.is_some()),
+            ("interval_ms", s.interval_ms.is_some()),
+            ("path", s.path.is_some()),
+            ("settle_ms", s.settle_ms.is_some()),
+            ("timeout_ms", s.timeout_ms.is_some()),
+            ("uri", s.uri.is_some()),
+        ];
+        for (name, set) in given {
+            if set && !allowed.contains(&name) {
+                return Err(c.err(k(&format!("source.{name}")), "(set)", format!("does not apply to kind = {:?}", s.kind)));
+            }
+        }
+        Ok(())
+    };
+    Ok(match s.kind.as_str() {
+        "sim" => {
+            only(&["seed", "width", "height", "noise", "scenes", "interval_ms"])?;
+            SourceConfig::Sim {
+                seed: c.int(&k("source.seed"), s.seed.unwrap_or(1), 0, i64::MAX)?,
+                width: c.int(&k("source.width"), s.width.unwrap_or(2592), 320, 8192)?,
+                height: c.int(&k("source.height"), s.height.unwrap_or(1944), 240, 8192)?,
+                noise: s.noise.map(|n| c.real(&k("source.noise"), n, 0.0, 100.0)).transpose()?,
+                scenes: c.int(&k("source.scenes"), s.scenes.unwrap_or(8), 1, 256)?,
+                interval: Duration::from_millis(c.int(&k("source.interval_ms"), s.interval_ms.unwrap_or(500), 0, 3_600_000)?),
+            }
+        }
+        "dir" => {
+            only(&["path", "settle_ms", "timeout_ms"])?;
+            let p = s.path.as_ref().ok_or_else(|| c.err(k("source.path"), "(missing)", "is required for kind = \"dir\""))?;
+            SourceConfig::Dir {
+                path: base.join(p),
+                settle: Duration::from_millis(c.int(&k("source.settle_ms"), s.settle_ms.unwrap_or(200), 0, 60_000)?),
+                timeout: Duration::from_millis(c.int(&k("source.timeout_ms"), s.timeout_ms.unwrap_or(5000), 1, 3_600_000)?),
+            }
+        }
+        "video" => {
+            only(&["uri", "timeout_ms"])?;
+            let uri = s
+                .uri
+                .clone()
+                .filter(|u| !u.trim().is_empty())
+                .ok_or_else(|| c.err(k("source.uri"), "(missing)", "is required for kind = \"video\""))?;
+            SourceConfig::Video {
+                uri,
+                timeout: Duration::from_millis(c.int(&k("source.timeout_ms"), s.timeout_ms.unwrap_or(5000), 1, 3_600_000)?),
+            }
+        }
+        other => return Err(c.err(k("source.kind"), format!("{other:?}"), "is not one of \"sim\", \"dir\", \"video\"")),
+    })
+}
+
+/// A camera's own job keys, which its `[[camera.job]]` tables default to.
+struct JobDefaults {
+    kb: Option<KbSource>,
+    accept_threshold: f64,
+    roi: Option<[usize; 4]>,
+    calibration: CalibrationConfig,
+}
+
+/// `[[camera.job]]`, each key defaulting to the camera's own; without job tables, the camera's
+/// keys are its one job, job 1.
+fn jobs_of(
+    c: &Check<'_>,
+    k: &dyn Fn(&str) -> String,
+    rc: &raw::Camera,
+    source: &SourceConfig,
+    base: &Path,
+    own: JobDefaults,
+) -> Result<Vec<JobConfig>, ConfigError> {
+    let mut jobs: Vec<JobConfig> = Vec::new();
+    for (j, rj) in rc.job.iter().enumerate() {
+        let jk = |f: &str| k(&format!("job[{j}].{f}"));
+        let id: u16 = c.int(&jk("id"), rj.id, 1, 999)?;
+        if jobs.iter().any(|o| o.id == id) {
+            return Err(c.err(jk("id"), id, "is used by another job of this camera"));
+        }
+        let kb = match kb_source(c, &jk, rj.kb.as_deref(), rj.kb_from_simulator, source, base)? {
+            Some(kb) => kb,
+            None => own
+                .kb
+                .clone()
+                .ok_or_else(|| c.err(jk("kb"), "(missing)", "is required: the camera has no kb for its jobs to start from"))?,
+        };
+        jobs.push(JobConfig {
+            id,
+            name: rj.name.clone().unwrap_or_else(|| format!("job {id}")),
+            kb,
+            expected_type: rj.expected_type.map(|t| c.int(&jk("expected_type"), t, 0, 65535)).transpose()?,
+            accept_threshold: rj
+                .accept_threshold
+                .map(|t| c.real(&jk("accept_threshold"), t, 0.0, 1.0))
+                .transpose()?
+                .unwrap_or(own.accept_threshold),
+            roi: roi_of(c, &jk, rj.roi.as_deref(), source)?.or(own.roi),
+            calibration: calibration_of(c, &jk, rj.calibration.as_ref(), rj.mm_per_px)?.unwrap_or_else(|| own.calibration.clone()),
+        });
+    }
+    if jobs.is_empty() {
+        let kb = own.kb.ok_or_else(|| c.err(k("kb"), "(missing)", "is required (or kb_from_simulator = true with a sim source)"))?;
+        let JobDefaults { accept_threshold, roi, calibration, .. } = own;
+        jobs.push(JobConfig { id: 1, name: "job 1".into(), kb, expected_type: None, accept_threshold, roi, calibration });
+    }
+    Ok(jobs)
+}
+
+/// `[camera.robot]`, its keys named by `rk`.
+fn robot_of(c: &Check<'_>, rk: &dyn Fn(&str) -> String, r: &raw::Robot, word_order: WordOrder) -> Result<RobotConfig, ConfigError> {
+    if let Err(problem) = check_host_port(&r.address) {
+        return Err(c.err(rk("address"), format!("{:?}", r.address), problem));
+    }
+    Ok(RobotConfig {
+        address: r.address.clone(),
+        unit_id: c.int(&rk("unit_id"), r.unit_id, 0, 255)?,
+        input_words_at: c.int(&rk("input_words_at"), r.input_words_at, 0, 65535 - 9)?, // words 0..=9
+        output_words_at: c.int(&rk("output_words_at"), r.output_words_at, 0, 65535 - 1)?,
+        output_function: c.int(&rk("output_function"), r.output_function, 3, 4)?,
+        poll: Duration::from_millis(c.int(&rk("poll_ms"), r.poll_ms, 1, 60_000)?),
+        ack_timeout: Duration::from_secs_f64(c.real(&rk("ack_timeout_s"), r.ack_timeout_s, 0.05, 86400.0)?),
+        send: r.send,
+        queue_depth: c.int(&rk("queue_depth"), r.queue_depth, 1, 10_000)?,
+        word_order,
+    })
 }
 
 /// A knowledge base from `kb` (a file, relative to the configuration's folder) or
