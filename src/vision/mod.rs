@@ -334,6 +334,31 @@ impl PartEstimate {
         }
     }
 
+    /// A part without a type (yet) at `at`, with the verdict so far.
+    fn unnamed(at: Pt, outline: Vec<Pt>, verdict: Verdict) -> Self {
+        let mut est = PartEstimate {
+            type_name: None,
+            type_id: 0,
+            face: None,
+            angle_deg: 0.0,
+            x: at.x,
+            y: at.y,
+            scale: 1.0,
+            confidence: 0.0,
+            accepted: false,
+            reason: Reason::UnknownType,
+            decision: Decision::new(Verdict::OrderUnclear, Evidence::default()),
+            fit: 0.0,
+            matched: None,
+            outline,
+            axis: None,
+            segments: Vec::new(),
+            descriptor: Vec::new(),
+        };
+        est.conclude(verdict, Evidence::default());
+        est
+    }
+
     /// Records the verdict: REASON and acceptance follow from it, in this one place.
     fn conclude(&mut self, verdict: Verdict, evidence: Evidence) {
         self.reason = verdict.reason();
@@ -595,25 +620,7 @@ impl Estimator {
                 debris += 1;
                 continue;
             }
-            out.push(PartEstimate {
-                type_name: None,
-                type_id: 0,
-                face: None,
-                angle_deg: 0.0,
-                x: c.x,
-                y: c.y,
-                scale: 1.0,
-                confidence: 0.0,
-                accepted: false,
-                reason: Reason::Touching,
-                decision: Decision::new(Verdict::Unexplained { area }, Evidence::default()),
-                fit: 0.0,
-                matched: None,
-                outline: Vec::new(),
-                axis: None,
-                segments: Vec::new(),
-                descriptor: Vec::new(),
-            });
+            out.push(PartEstimate::unnamed(c, Vec::new(), Verdict::Unexplained { area }));
         }
         Ok(Some((out, debris)))
     }
@@ -628,25 +635,7 @@ impl Estimator {
     ) -> Result<(PartEstimate, f64), FrameError> {
         let p = &self.params;
         let (_, c0) = area_centroid(&blob.outline);
-        let mut est = PartEstimate {
-            type_name: None,
-            type_id: 0,
-            face: None,
-            angle_deg: 0.0,
-            x: c0.x,
-            y: c0.y,
-            scale: 1.0,
-            confidence: 0.0,
-            accepted: false,
-            reason: Reason::UnknownType,
-            decision: Decision::new(Verdict::NoFit { need: p.min_fit, merged: false }, Evidence::default()),
-            fit: 0.0,
-            matched: None,
-            outline: blob.outline.clone(),
-            axis: None,
-            segments: Vec::new(),
-            descriptor: Vec::new(),
-        };
+        let mut est = PartEstimate::unnamed(c0, blob.outline.clone(), Verdict::NoFit { need: p.min_fit, merged: false });
         let t = Instant::now();
         let refined = boundary::refine(frame, &blob.outline, noise, &p.refine_params(coarse.factor));
         let contrast = refined.contrast;
@@ -681,48 +670,7 @@ impl Estimator {
         est.segments = segments;
         tm.lines += ms(t);
 
-        let t = Instant::now();
-        let corr = &self.lib.correlator;
-        let signal = signal::log_radius_signal(&outline, centroid, corr.bins());
-        let spec = corr.spectrum(&signal);
-        let mut aligned: Vec<(usize, correlate::Alignment)> =
-            self.lib.entries.iter().enumerate().map(|(i, e)| (i, corr.align(&spec, &e.spectrum))).collect();
-        aligned.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms));
-        tm.correlate += ms(t);
-
-        let t = Instant::now();
-        // The closest template by correlation is registered on every point; runners-up whose
-        // correlation distance is not far off (within 3x + 0.02) on a quarter of them, enough to
-        // see whether they rival it. The others cannot: their outline differs everywhere.
-        let best_rms = aligned[0].1.rms;
-        let mut cands: Vec<Candidate> = aligned
-            .iter()
-            .take(p.candidates)
-            .enumerate()
-            .filter(|(rank, (_, al))| *rank == 0 || al.rms <= 3.0 * best_rms + 0.02)
-            .map(|(rank, &(i, al))| {
-                let e = &self.lib.entries[i];
-                let init = Similarity {
-                    from: e.template.centroid,
-                    to: centroid,
-                    angle_rad: (al.shift / corr.bins() as f64) * std::f64::consts::TAU,
-                    scale: al.scale,
-                };
-                // Outlines of rounded parts shift with the light by a few pixels; noise adds jitter.
-                let tolerance = p.fit_tolerance + p.fit_tolerance_rel * e.template.rms_radius() + noise / 15.0;
-                let stride = if rank == 0 { 1 } else { 4 };
-                Candidate { entry: i, reg: register::register(&outline, &e.index, init, tolerance, stride), corr_rms: al.rms, tolerance }
-            })
-            .collect();
-        // Should a runner-up beat the first, register it fully too: its pose is the one reported.
-        if let Some(k) = (1..cands.len()).max_by(|&x, &y| cands[x].reg.fit().total_cmp(&cands[y].reg.fit()))
-            && cands[k].reg.fit() > cands[0].reg.fit()
-        {
-            let e = &self.lib.entries[cands[k].entry];
-            cands[k].reg = register::register(&outline, &e.index, cands[k].reg.pose, cands[k].tolerance, 1);
-        }
-        cands.sort_by(|a, b| b.reg.fit().total_cmp(&a.reg.fit()).then(a.reg.rms.total_cmp(&b.reg.rms)));
-        tm.register += ms(t);
+        let (aligned, cands) = self.candidates(&outline, centroid, noise, tm);
 
         let best = &cands[0];
         let entry = &self.lib.entries[best.entry];
@@ -732,18 +680,7 @@ impl Estimator {
         est.fit = best.reg.fit();
         est.scale = pose.scale;
         est.matched = Some((best.entry, pose));
-        let next = aligned
-            .iter()
-            .filter(|(i, _)| *i != best.entry)
-            .take(2)
-            .map(|(i, al)| {
-                let fit = match cands.iter().find(|c| c.entry == *i) {
-                    Some(c) => NextFit::Fit(c.reg.fit()),
-                    None => NextFit::CorrRms(al.rms),
-                };
-                (named(&self.lib.entries[*i].template), fit)
-            })
-            .collect();
+        let next = self.runners_up(&aligned, &cands, best.entry);
         let mut evidence = Evidence {
             outline: Some(OutlineFit {
                 best: named(tpl),
@@ -791,34 +728,12 @@ impl Estimator {
         // from the best fit's own residual (four RMS, within the generous one): noise widens
         // the tolerance for naming a type, but must not blur a small face difference (an
         // eyelet on one side) into a tie.
-        let tight = (4.0 * best.reg.rms).clamp(p.fit_tolerance, best.tolerance);
-        let others: Vec<&Candidate> = cands
-            .iter()
-            .skip(1)
-            .filter(|c| {
-                let o = &self.lib.entries[c.entry].template;
-                o.type_name != tpl.type_name || o.face != tpl.face
-            })
-            .collect();
-        let best_tight = if others.is_empty() { est.fit } else { register::measure(&outline, &entry.index, pose, tight, 1).fit() };
-        let rival = others
-            .into_iter()
-            .map(|c| (c, register::measure(&outline, &self.lib.entries[c.entry].index, c.reg.pose, tight, 4).fit()))
-            .find(|(_, fit)| *fit >= best_tight - p.ambiguity_margin);
-        let rival_conf =
-            rival.map(|(c, _)| confidence(&self.lib.entries[c.entry].template.segments, &est.segments, &c.reg.pose, diag, lambda));
+        let rival = self.rival(&outline, &cands, &est.segments, diag, lambda);
         tm.confidence += ms(t);
         evidence.lines = Some(decide::Lines { confidence: est.confidence, noise, contrast: refined.contrast, lambda });
-        if let (Some((c, rival_fit)), Some(rc)) = (rival, rival_conf) {
-            let rival = decide::Rival {
-                name: named(&self.lib.entries[c.entry].template),
-                fit: rival_fit,
-                best: best_tight,
-                tolerance: tight,
-                confidence: rc,
-            };
+        if let Some(rival) = rival {
             evidence.rival = Some(rival.clone());
-            if est.confidence - rc < p.confidence_margin {
+            if est.confidence - rival.confidence < p.confidence_margin {
                 est.conclude(Verdict::Rival { rival }, evidence);
                 return Ok((est, contrast));
             }
@@ -832,6 +747,112 @@ impl Estimator {
         };
         est.conclude(verdict, evidence);
         Ok((est, contrast))
+    }
+
+    /// Stages 4 and 4b: every template by correlation distance (best first), and the closest
+    /// ones registered onto the outline (best fit first).
+    fn candidates(
+        &self,
+        outline: &[Pt],
+        centroid: Pt,
+        noise: f64,
+        tm: &mut Timings,
+    ) -> (Vec<(usize, correlate::Alignment)>, Vec<Candidate>) {
+        let p = &self.params;
+        let t = Instant::now();
+        let corr = &self.lib.correlator;
+        let signal = signal::log_radius_signal(outline, centroid, corr.bins());
+        let spec = corr.spectrum(&signal);
+        let mut aligned: Vec<(usize, correlate::Alignment)> =
+            self.lib.entries.iter().enumerate().map(|(i, e)| (i, corr.align(&spec, &e.spectrum))).collect();
+        aligned.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms));
+        tm.correlate += ms(t);
+
+        let t = Instant::now();
+        // The closest template by correlation is registered on every point; runners-up whose
+        // correlation distance is not far off (within 3x + 0.02) on a quarter of them, enough to
+        // see whether they rival it. The others cannot: their outline differs everywhere.
+        let best_rms = aligned[0].1.rms;
+        let mut cands: Vec<Candidate> = aligned
+            .iter()
+            .take(p.candidates)
+            .enumerate()
+            .filter(|(rank, (_, al))| *rank == 0 || al.rms <= 3.0 * best_rms + 0.02)
+            .map(|(rank, &(i, al))| {
+                let e = &self.lib.entries[i];
+                let init = Similarity {
+                    from: e.template.centroid,
+                    to: centroid,
+                    angle_rad: (al.shift / corr.bins() as f64) * std::f64::consts::TAU,
+                    scale: al.scale,
+                };
+                // Outlines of rounded parts shift with the light by a few pixels; noise adds jitter.
+                let tolerance = p.fit_tolerance + p.fit_tolerance_rel * e.template.rms_radius() + noise / 15.0;
+                let stride = if rank == 0 { 1 } else { 4 };
+                Candidate { entry: i, reg: register::register(outline, &e.index, init, tolerance, stride), corr_rms: al.rms, tolerance }
+            })
+            .collect();
+        // Should a runner-up beat the first, register it fully too: its pose is the one reported.
+        if let Some(k) = (1..cands.len()).max_by(|&x, &y| cands[x].reg.fit().total_cmp(&cands[y].reg.fit()))
+            && cands[k].reg.fit() > cands[0].reg.fit()
+        {
+            let e = &self.lib.entries[cands[k].entry];
+            cands[k].reg = register::register(outline, &e.index, cands[k].reg.pose, cands[k].tolerance, 1);
+        }
+        cands.sort_by(|a, b| b.reg.fit().total_cmp(&a.reg.fit()).then(a.reg.rms.total_cmp(&b.reg.rms)));
+        tm.register += ms(t);
+        (aligned, cands)
+    }
+
+    /// The two templates after `best` by correlation distance, with their fit where they were
+    /// registered: the "why" shows what came next.
+    fn runners_up(&self, aligned: &[(usize, correlate::Alignment)], cands: &[Candidate], best: usize) -> Vec<(Named, NextFit)> {
+        aligned
+            .iter()
+            .filter(|(i, _)| *i != best)
+            .take(2)
+            .map(|(i, al)| {
+                let fit = match cands.iter().find(|c| c.entry == *i) {
+                    Some(c) => NextFit::Fit(c.reg.fit()),
+                    None => NextFit::CorrRms(al.rms),
+                };
+                (named(&self.lib.entries[*i].template), fit)
+            })
+            .collect()
+    }
+
+    /// The first other type or face whose outline fits within the ambiguity margin of the best
+    /// at a tight tolerance (four times the best's residual, within the generous one), with its
+    /// fit, the best's at that tolerance, the tolerance and its line features' confidence.
+    fn rival(&self, outline: &[Pt], cands: &[Candidate], found: &[Segment], diag: f64, lambda: f64) -> Option<decide::Rival> {
+        let p = &self.params;
+        let best = &cands[0];
+        let tpl = &self.lib.entries[best.entry].template;
+        let tight = (4.0 * best.reg.rms).clamp(p.fit_tolerance, best.tolerance);
+        let others: Vec<&Candidate> = cands
+            .iter()
+            .skip(1)
+            .filter(|c| {
+                let o = &self.lib.entries[c.entry].template;
+                o.type_name != tpl.type_name || o.face != tpl.face
+            })
+            .collect();
+        if others.is_empty() {
+            return None;
+        }
+        let best_tight = register::measure(outline, &self.lib.entries[best.entry].index, best.reg.pose, tight, 1).fit();
+        let (c, fit) = others
+            .into_iter()
+            .map(|c| (c, register::measure(outline, &self.lib.entries[c.entry].index, c.reg.pose, tight, 4).fit()))
+            .find(|(_, fit)| *fit >= best_tight - p.ambiguity_margin)?;
+        let e = &self.lib.entries[c.entry];
+        Some(decide::Rival {
+            name: named(&e.template),
+            fit,
+            best: best_tight,
+            tolerance: tight,
+            confidence: confidence(&e.template.segments, found, &c.reg.pose, diag, lambda),
+        })
     }
 }
 
