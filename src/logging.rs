@@ -17,6 +17,19 @@ use tracing_subscriber::layer::SubscriberExt;
 use tracing_subscriber::{EnvFilter, Layer};
 use tracing_throttle::{Policy, TracingRateLimitLayer};
 
+/// An error and every cause behind it, "outer: inner: root", as the log and the page write it
+/// (a bare `to_string` drops the cause that names the file).
+pub fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut text = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        text.push_str(": ");
+        text.push_str(&c.to_string());
+        cause = c.source();
+    }
+    text
+}
+
 /// Lines one place in the code may write at once before it is rate-limited.
 pub const BURST: f64 = 20.0;
 /// Lines a minute one place may write after its burst.
@@ -71,5 +84,17 @@ fn rate_limit(t: Throttle) -> Option<TracingRateLimitLayer> {
             eprintln!("log rate limit not set up ({e}); every line will be written");
             None
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_error_chain_names_every_cause() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "no such file");
+        let e = crate::kb::KbError::Read { path: "/srv/kb.toml".into(), source: io };
+        assert_eq!(error_chain(&e), "cannot read knowledge base /srv/kb.toml: no such file");
     }
 }

@@ -159,11 +159,6 @@ async fn the_start_job_s_knowledge_base_must_load() {
         }
         Err(e) => e,
     };
-    let mut text = e.to_string();
-    let mut cause = std::error::Error::source(&e);
-    while let Some(c) = cause {
-        text.push_str(&format!(": {c}"));
-        cause = c.source();
-    }
+    let text = lfi_bridge::logging::error_chain(&e);
     assert!(text.contains("/nonexistent/start.toml"), "{text}");
 }

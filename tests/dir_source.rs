@@ -58,7 +58,9 @@ async fn free_running_folder_processes_each_dropped_file_exactly_once() {
     let s = wait_status(&mut ctx, |s| s & status::ERROR != 0, Duration::from_secs(20)).await;
     assert_eq!(s & status::ERROR, status::ERROR);
     std::fs::write(inbox.join("late.png"), &frames[0]).unwrap();
-    tokio::time::sleep(Duration::from_millis(500)).await;
+    // Settled after 50 ms; a worker that took files in ERROR would have taken it within its
+    // 50 ms poll after that: five times that long it is still there.
+    tokio::time::sleep(Duration::from_millis(250)).await;
     assert!(inbox.join("late.png").exists(), "a file arriving during ERROR is kept for later");
     assert_eq!(read(&mut ctx, 102, 1).await[0], 2, "ERROR_CODE 2: frame");
     write(&mut ctx, addr::CLEAR_ERROR, 1).await;
@@ -72,7 +74,12 @@ async fn free_running_folder_processes_each_dropped_file_exactly_once() {
         assert!(tokio::time::Instant::now() < until, "files left in the inbox: {left:?}");
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    tokio::time::sleep(Duration::from_millis(300)).await;
+    // The last file's result follows its move out of the inbox.
+    let until = tokio::time::Instant::now() + Duration::from_secs(5);
+    while read(&mut ctx, addr::ACQ_COUNT, 1).await[0] < 8 && tokio::time::Instant::now() < until {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(100)).await;
     let s = read(&mut ctx, 100, 5).await;
     assert_eq!(s[3], 8, "ACQ_COUNT: one acquisition per file");
     let done = std::fs::read_dir(inbox.join("done")).unwrap().count();

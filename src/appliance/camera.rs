@@ -157,15 +157,9 @@ impl Worker {
                 let ids: Vec<String> = self.jobs.iter().map(|j| j.id.to_string()).collect();
                 Err(format!("job {id} is not configured (jobs: {})", ids.join(", ")))
             }
-            Some(job) => super::load_job(&self.name, job, &self.source_config, &self.base_params).map(|l| (job.clone(), l)).map_err(|e| {
-                let mut text = e.to_string();
-                let mut cause = std::error::Error::source(&e);
-                while let Some(c) = cause {
-                    text.push_str(&format!(": {c}"));
-                    cause = c.source();
-                }
-                format!("job {id} ({}): {text}", job.name)
-            }),
+            Some(job) => super::load_job(&self.name, job, &self.source_config, &self.base_params)
+                .map(|l| (job.clone(), l))
+                .map_err(|e| format!("job {id} ({}): {}", job.name, crate::logging::error_chain(&e))),
         };
         // The job in force first, then the rest, as enrolment takes them: one of the two runs
         // whole before the other.

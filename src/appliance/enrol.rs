@@ -2,7 +2,6 @@
 //! template, save the knowledge base (when it is a file), then swap the camera's estimator and
 //! tell its handshake. The operator view only carries the request in and the answer out.
 
-use std::error::Error as _;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -128,10 +127,8 @@ impl CameraHandle {
         let saved = match &job.kb {
             KbSource::File(path) => {
                 let png = path.with_file_name(format!("{}_{}.png", req.type_name, req.face));
-                crate::imageio::write_png(&png, &crop).map_err(|e| EnrolError::Image {
-                    path: png.clone(),
-                    message: format!("{e}{}", e.source().map(|s| format!(": {s}")).unwrap_or_default()),
-                })?;
+                crate::imageio::write_png(&png, &crop)
+                    .map_err(|e| EnrolError::Image { path: png.clone(), message: crate::logging::error_chain(&e) })?;
                 kb.save(path)?;
                 format!("saved to {} (template image {})", path.display(), png.display())
             }

@@ -245,12 +245,22 @@ pub struct VideoSource {
     cap: Option<videoio::VideoCapture>,
     retry_at: Instant,
     timeout: Duration,
+    /// Wait before reopening after a failed read (twice this after a failed open).
+    retry: Duration,
 }
+
+/// How long a video source waits before reopening a stream that failed.
+pub const VIDEO_RETRY: Duration = Duration::from_secs(1);
 
 impl VideoSource {
     /// A source on `uri`, opened at the first grab (and reopened after a failure).
     pub fn new(uri: &str, timeout: Duration) -> Self {
-        let mut s = Self { uri: uri.to_string(), cap: None, retry_at: Instant::now(), timeout };
+        Self::with_retry(uri, timeout, VIDEO_RETRY)
+    }
+
+    /// As [`VideoSource::new`], reopening `retry` after a failed read.
+    pub fn with_retry(uri: &str, timeout: Duration, retry: Duration) -> Self {
+        let mut s = Self { uri: uri.to_string(), cap: None, retry_at: Instant::now(), timeout, retry };
         s.open();
         s
     }
@@ -266,9 +276,9 @@ impl VideoSource {
                 self.cap = Some(cap);
             }
             Ok(_) | Err(_) => {
-                tracing::warn!(uri = %self.uri, "video source cannot be opened; retrying in 2 s");
+                tracing::warn!(uri = %self.uri, "video source cannot be opened; retrying in {:.1} s", (2 * self.retry).as_secs_f64());
                 self.cap = None;
-                self.retry_at = Instant::now() + Duration::from_secs(2);
+                self.retry_at = Instant::now() + 2 * self.retry;
             }
         }
     }
@@ -283,7 +293,7 @@ impl VideoSource {
         let ok = cap.read(&mut m).unwrap_or(false);
         if !ok || m.empty() {
             self.cap = None;
-            self.retry_at = Instant::now() + Duration::from_secs(1);
+            self.retry_at = Instant::now() + self.retry;
             if started.elapsed() > self.timeout {
                 return Err(SourceError::Timeout(self.timeout.as_millis()));
             }
@@ -377,7 +387,8 @@ mod tests {
         }
         writer.release().unwrap();
 
-        let mut src = VideoSource::new(file.to_str().unwrap(), Duration::from_millis(500));
+        let retry = Duration::from_millis(200);
+        let mut src = VideoSource::with_retry(file.to_str().unwrap(), Duration::from_millis(500), retry);
         assert!(src.ok());
         for level in levels {
             let frame = src.grab().expect("a recorded frame");
@@ -388,7 +399,8 @@ mod tests {
         let end = src.grab().unwrap_err();
         assert!(matches!(&end, SourceError::Camera(m) if m.contains("belt.avi")), "{end}");
         assert!(!src.ok(), "after the end of the stream the camera is not OK");
-        std::thread::sleep(Duration::from_millis(1100));
+        assert!(src.grab().is_err(), "not reopened before the retry delay");
+        std::thread::sleep(retry + Duration::from_millis(20));
         let again = src.grab().expect("after the retry delay the file is reopened");
         let mean = mean_gray(&again);
         assert!((mean - levels[0]).abs() < 4.0, "a file replays from its first frame ({mean:.1})");

@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::TcpListener;
 use tokio_modbus::ExceptionCode;
 use tokio_util::sync::CancellationToken;
 
@@ -102,17 +102,22 @@ struct Slot {
     id: usize,
     peer: SocketAddr,
     /// When it last completed a request (or connected), shared with its session.
-    last_request: Arc<Mutex<Instant>>,
+    last_request: Arc<Mutex<tokio::time::Instant>>,
     close: CancellationToken,
 }
 
 impl Slots {
     /// Registers a new connection, closing the longest-silent one if all `max` slots are taken
     /// and it has been silent for [`RECLAIM_IDLE`]; None when every slot is in use.
-    fn take(&self, peer: SocketAddr, max: usize, shutdown: &CancellationToken) -> Option<(usize, Arc<Mutex<Instant>>, CancellationToken)> {
+    fn take(
+        &self,
+        peer: SocketAddr,
+        max: usize,
+        shutdown: &CancellationToken,
+    ) -> Option<(usize, Arc<Mutex<tokio::time::Instant>>, CancellationToken)> {
         let mut open = self.open.lock().unwrap_or_else(|p| p.into_inner());
         if open.len() >= max {
-            let now = Instant::now();
+            let now = tokio::time::Instant::now();
             let idle = |s: &Slot| now.duration_since(*s.last_request.lock().unwrap_or_else(|p| p.into_inner()));
             let (i, longest) = open.iter().enumerate().map(|(i, s)| (i, idle(s))).max_by_key(|(_, d)| *d)?;
             if longest < RECLAIM_IDLE {
@@ -128,7 +133,7 @@ impl Slots {
             old.close.cancel();
         }
         let id = self.next_id.fetch_add(1, Ordering::Relaxed);
-        let last_request = Arc::new(Mutex::new(Instant::now()));
+        let last_request = Arc::new(Mutex::new(tokio::time::Instant::now()));
         let close = shutdown.child_token();
         open.push(Slot { id, peer, last_request: last_request.clone(), close: close.clone() });
         Some((id, last_request, close))
@@ -220,6 +225,7 @@ pub async fn serve(listener: TcpListener, stations: Arc<Stations>, settings: Set
         stats.connected.fetch_add(1, Ordering::SeqCst);
         tracing::info!(%peer, "Modbus client connected ({} now)", stats.connected.load(Ordering::SeqCst));
         let (stations, settings, stats, slots) = (stations.clone(), settings.clone(), stats.clone(), slots.clone());
+        let _ = stream.set_nodelay(true);
         tokio::spawn(async move {
             let why = session(stream, peer, &stations, &settings, &stats, &last_request, close).await;
             slots.release(id);
@@ -230,17 +236,17 @@ pub async fn serve(listener: TcpListener, stations: Arc<Stations>, settings: Set
     tracing::info!("Modbus server stopped accepting");
 }
 
-/// One client's request/response loop; returns why it ended.
-async fn session(
-    mut stream: TcpStream,
+/// One client's request/response loop over any byte stream (a TCP connection; an in-memory
+/// pipe in the tests, on tokio's paused clock); returns why it ended.
+async fn session<S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin>(
+    mut stream: S,
     peer: SocketAddr,
     stations: &Stations,
     settings: &Settings,
     stats: &Stats,
-    last_request: &Mutex<Instant>,
+    last_request: &Mutex<tokio::time::Instant>,
     close: CancellationToken,
 ) -> String {
-    let _ = stream.set_nodelay(true);
     let mut buf: Vec<u8> = Vec::with_capacity(512);
     let mut chunk = [0u8; 1024];
     // Idle time counts from the last complete request (`last_request`, which the slot table
@@ -252,7 +258,7 @@ async fn session(
             match frame::decode(&mut buf) {
                 Ok(Some(adu)) => {
                     frame_since = None;
-                    *last_request.lock().unwrap_or_else(|p| p.into_inner()) = Instant::now();
+                    *last_request.lock().unwrap_or_else(|p| p.into_inner()) = tokio::time::Instant::now();
                     let out = respond(stations, &adu, peer.ip(), &settings.write_allow, stats);
                     if let Err(e) = stream.write_all(&out).await {
                         return format!("write failed: {e}");
@@ -270,7 +276,7 @@ async fn session(
         } else if frame_since.is_none() {
             frame_since = Some(tokio::time::Instant::now());
         }
-        let idle_since = tokio::time::Instant::from_std(*last_request.lock().unwrap_or_else(|p| p.into_inner()));
+        let idle_since = *last_request.lock().unwrap_or_else(|p| p.into_inner());
         let idle_end = idle_since + settings.idle_timeout;
         let deadline = frame_since.map_or(idle_end, |t| (t + settings.frame_timeout).min(idle_end));
         let n = tokio::select! {
@@ -280,7 +286,7 @@ async fn session(
                     tracing::warn!(%peer, "closing Modbus connection: a request incomplete {} ms after its first byte ({} bytes)", settings.frame_timeout.as_millis(), buf.len());
                     return format!("request incomplete after {} ms", settings.frame_timeout.as_millis());
                 }
-                Err(_) => return format!("no complete request for {} s", settings.idle_timeout.as_secs()),
+                Err(_) => return format!("no complete request for {:.1} s", settings.idle_timeout.as_secs_f64()),
                 Ok(Err(e)) => return format!("read failed: {e}"),
                 Ok(Ok(0)) => return "closed by client".into(),
                 Ok(Ok(n)) => n,
@@ -289,5 +295,114 @@ async fn session(
         // The buffer never holds more than one incomplete frame (the length field is checked
         // before waiting for the rest), so a peer cannot make it grow.
         buf.extend_from_slice(&chunk[..n]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! The connection's deadlines and the slot table on tokio's paused clock: an in-memory pipe
+    //! stands in for the socket, and a minute of silence takes no time at all.
+    use super::*;
+    use crate::handshake::{PickingOrder, Settings as HsSettings, WordOrder};
+
+    fn stations() -> Stations {
+        let hs = Handshake::new(HsSettings {
+            queue_depth: 4,
+            online: true,
+            word_order: WordOrder::HighFirst,
+            types_enrolled: 3,
+            picking_order: PickingOrder::XAscending,
+            boot_id: 1,
+            job_id: 1,
+        });
+        let (commands, _) = std::sync::mpsc::channel();
+        let station = Station { unit_id: 1, handshake: Arc::new(Mutex::new(hs)), commands, last_writer: Mutex::new((None, None)) };
+        Stations::new(vec![station], Instant::now())
+    }
+
+    fn settings() -> Settings {
+        Settings {
+            max_connections: 2,
+            idle_timeout: Duration::from_secs(60),
+            frame_timeout: Duration::from_secs(3),
+            write_allow: Vec::new(),
+        }
+    }
+
+    fn peer() -> SocketAddr {
+        "10.0.0.7:50000".parse().unwrap()
+    }
+
+    /// FC3 of STATUS (100), one register, transaction `t`.
+    fn read_status(t: u16) -> Vec<u8> {
+        let [t0, t1] = t.to_be_bytes();
+        vec![t0, t1, 0, 0, 0, 6, 1, 3, 0, 100, 0, 1]
+    }
+
+    /// Runs a session on one end of a pipe; the other end is the client's.
+    fn open(
+        stations: Arc<Stations>,
+    ) -> (tokio::io::DuplexStream, tokio::task::JoinHandle<(String, tokio::time::Instant)>, Arc<Mutex<tokio::time::Instant>>) {
+        let (client, server) = tokio::io::duplex(1024);
+        let last = Arc::new(Mutex::new(tokio::time::Instant::now()));
+        let l = last.clone();
+        let task = tokio::spawn(async move {
+            let why = session(server, peer(), &stations, &settings(), &Stats::default(), &l, CancellationToken::new()).await;
+            (why, tokio::time::Instant::now())
+        });
+        (client, task, last)
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_silent_client_is_closed_after_the_idle_timeout_counted_from_its_last_request() {
+        let stations = Arc::new(stations());
+        let t0 = tokio::time::Instant::now();
+        let (mut client, task, _) = open(stations);
+        // A request at 30 s: the idle time starts again from there.
+        tokio::time::sleep(Duration::from_secs(30)).await;
+        client.write_all(&read_status(1)).await.unwrap();
+        let mut resp = [0u8; 11];
+        client.read_exact(&mut resp).await.unwrap();
+        assert_eq!(&resp[..2], &[0, 1], "the answer to transaction 1");
+        let (why, ended) = task.await.unwrap();
+        assert!(why.starts_with("no complete request for 60.0 s"), "{why}");
+        let after = ended - t0;
+        assert!(after >= Duration::from_secs(90) && after < Duration::from_secs(91), "closed {after:?} after opening");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_trickling_client_is_closed_at_the_frame_timeout_whatever_its_bytes() {
+        let stations = Arc::new(stations());
+        let t0 = tokio::time::Instant::now();
+        let (mut client, task, _) = open(stations);
+        // One byte a second: each restarts no timer, the request must be whole within 3 s.
+        for b in read_status(2).into_iter().take(8) {
+            if client.write_all(&[b]).await.is_err() {
+                break; // closed by the server
+            }
+            tokio::time::sleep(Duration::from_secs(1)).await;
+        }
+        let (why, ended) = task.await.unwrap();
+        assert!(why.starts_with("request incomplete after 3000 ms"), "{why}");
+        let after = ended - t0;
+        assert!(after >= Duration::from_secs(3) && after < Duration::from_secs(4), "closed {after:?} after the first byte");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_new_client_takes_the_slot_of_the_one_silent_longest_once_it_has_been_silent_a_second() {
+        let slots = Slots::default();
+        let shutdown = CancellationToken::new();
+        let (_, a_last, a_close) = slots.take(peer(), 2, &shutdown).unwrap();
+        tokio::time::advance(Duration::from_millis(300)).await;
+        let (_, b_last, b_close) = slots.take(peer(), 2, &shutdown).unwrap();
+        // Both active within RECLAIM_IDLE: a third is refused.
+        assert!(slots.take(peer(), 2, &shutdown).is_none());
+        // b keeps polling; a falls silent.
+        tokio::time::advance(RECLAIM_IDLE).await;
+        *b_last.lock().unwrap() = tokio::time::Instant::now();
+        let third = slots.take(peer(), 2, &shutdown);
+        assert!(third.is_some(), "a slot silent for {RECLAIM_IDLE:?} goes to the new client");
+        assert!(a_close.is_cancelled() && !b_close.is_cancelled(), "the silent one is closed, the polling one kept");
+        drop(a_last);
     }
 }
