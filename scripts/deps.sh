@@ -9,6 +9,11 @@ command -v clang >/dev/null 2>&1 || need+=(clang)
 # The opencv crate's binding generator loads libclang at build time.
 ls /usr/lib/llvm-*/lib/libclang.so* >/dev/null 2>&1 || ls /usr/lib/x86_64-linux-gnu/libclang-*.so* >/dev/null 2>&1 || need+=(libclang-dev)
 command -v pkg-config >/dev/null 2>&1 || need+=(pkg-config)
+# GigE Vision / USB3 Vision cameras; Debian's aravis-0.8.pc requires libusb-1.0's .pc, which
+# libaravis-dev does not pull in. aravis-tools has the fake GigE camera the tests talk to.
+pkg-config --exists aravis-0.8 2>/dev/null || need+=(libaravis-dev libusb-1.0-0-dev)
+command -v arv-fake-gv-camera-0.8 >/dev/null 2>&1 || need+=(aravis-tools)
+command -v arv-tool-0.8 >/dev/null 2>&1 || need+=(aravis-tools-cli)
 if [ "${LFI_WITH_BROWSER:-0}" = 1 ]; then
   command -v chromium >/dev/null 2>&1 || need+=(chromium)
 fi

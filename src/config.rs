@@ -252,6 +252,13 @@ mod raw {
         pub timeout_ms: Option<i64>,
         // video
         pub uri: Option<String>,
+        // genicam
+        pub device: Option<String>,
+        pub exposure_us: Option<f64>,
+        pub gain: Option<f64>,
+        pub pixel_format: Option<String>,
+        pub hardware_trigger: Option<String>,
+        pub packet_size: Option<i64>,
     }
 
     #[derive(Debug, Deserialize)]
@@ -365,6 +372,8 @@ pub enum SourceConfig {
         /// A trigger with no frame within this is a camera fault.
         timeout: Duration,
     },
+    /// A GigE Vision or USB3 Vision camera through Aravis.
+    Genicam(crate::appliance::genicam::GenicamSettings),
 }
 
 /// `"modbus"` or `"free-run"`.
@@ -675,7 +684,9 @@ fn http_of(c: &Check<'_>, h: &raw::Http) -> Result<Option<HttpConfig>, ConfigErr
 fn camera_of(c: &Check<'_>, i: usize, rc: &raw::Camera, base: &Path, accept_threshold: f64) -> Result<CameraConfig, ConfigError> {
     let k = |f: &str| format!("camera[{i}].{f}");
     let unit_id: u8 = c.int(&k("unit_id"), rc.unit_id, 1, 247)?;
-    let source = source_of(c, &k, &rc.source, base)?;
+    let source = source_of(c, &k, &rc.source, base, rc.trigger == Trigger::FreeRun)?;
+    // A hardware-triggered camera's frames are its acquisitions, as a free-running one's.
+    let trigger = if matches!(&source, SourceConfig::Genicam(g) if g.hardware_trigger.is_some()) { Trigger::FreeRun } else { rc.trigger };
     let kb = kb_source(c, &k, rc.kb.as_deref(), rc.kb_from_simulator, &source, base)?;
     let roi = roi_of(c, &k, rc.roi.as_deref(), &source)?;
     let calibration = calibration_of(c, &k, rc.calibration.as_ref(), rc.mm_per_px)?.unwrap_or(CalibrationConfig::Scale { mm_per_px: 1.0 });
@@ -711,7 +722,7 @@ fn camera_of(c: &Check<'_>, i: usize, rc: &raw::Camera, base: &Path, accept_thre
         unit_id,
         name: rc.name.clone().unwrap_or_else(|| format!("camera{unit_id}")),
         source,
-        trigger: rc.trigger,
+        trigger,
         online: rc.online,
         jobs,
         start_job,
@@ -723,7 +734,7 @@ fn camera_of(c: &Check<'_>, i: usize, rc: &raw::Camera, base: &Path, accept_thre
 }
 
 /// `[camera.source]`: only the keys of its `kind` may be set.
-fn source_of(c: &Check<'_>, k: &dyn Fn(&str) -> String, s: &raw::Source, base: &Path) -> Result<SourceConfig, ConfigError> {
+fn source_of(c: &Check<'_>, k: &dyn Fn(&str) -> String, s: &raw::Source, base: &Path, free_run: bool) -> Result<SourceConfig, ConfigError> {
     let only = |allowed: &[&str]| -> Result<(), ConfigError> {
         let given = [
             ("seed", s.seed.is_some()),
@@ -736,6 +747,12 @@ fn source_of(c: &Check<'_>, k: &dyn Fn(&str) -> String, s: &raw::Source, base: &
             ("settle_ms", s.settle_ms.is_some()),
             ("timeout_ms", s.timeout_ms.is_some()),
             ("uri", s.uri.is_some()),
+            ("device", s.device.is_some()),
+            ("exposure_us", s.exposure_us.is_some()),
+            ("gain", s.gain.is_some()),
+            ("pixel_format", s.pixel_format.is_some()),
+            ("hardware_trigger", s.hardware_trigger.is_some()),
+            ("packet_size", s.packet_size.is_some()),
         ];
         for (name, set) in given {
             if set && !allowed.contains(&name) {
@@ -777,7 +794,36 @@ fn source_of(c: &Check<'_>, k: &dyn Fn(&str) -> String, s: &raw::Source, base: &
                 timeout: Duration::from_millis(c.int(&k("source.timeout_ms"), s.timeout_ms.unwrap_or(5000), 1, 3_600_000)?),
             }
         }
-        other => return Err(c.err(k("source.kind"), format!("{other:?}"), "is not one of \"sim\", \"dir\", \"video\"")),
+        "genicam" => {
+            only(&["device", "exposure_us", "gain", "pixel_format", "hardware_trigger", "packet_size", "timeout_ms"])?;
+            let name = |key: &str, v: &Option<String>| -> Result<Option<String>, ConfigError> {
+                match v {
+                    Some(t) if t.trim().is_empty() || t.chars().any(char::is_control) => {
+                        Err(c.err(k(&format!("source.{key}")), format!("{t:?}"), "is empty or holds control characters"))
+                    }
+                    other => Ok(other.clone()),
+                }
+            };
+            let hardware_trigger = name("hardware_trigger", &s.hardware_trigger)?;
+            if hardware_trigger.is_some() && free_run {
+                return Err(c.err(
+                    k("trigger"),
+                    "\"free-run\"",
+                    "does not go with source.hardware_trigger: with a hardware trigger every frame the camera sends is an acquisition; leave trigger unset",
+                ));
+            }
+            SourceConfig::Genicam(crate::appliance::genicam::GenicamSettings {
+                device: name("device", &s.device)?,
+                exposure_us: s.exposure_us.map(|v| c.real(&k("source.exposure_us"), v, 1.0, 1e8)).transpose()?,
+                gain: s.gain.map(|v| c.real(&k("source.gain"), v, -1000.0, 10000.0)).transpose()?,
+                pixel_format: name("pixel_format", &s.pixel_format)?,
+                hardware_trigger,
+                packet_size: s.packet_size.map(|v| c.int(&k("source.packet_size"), v, 576, 16384)).transpose()?,
+                timeout: Duration::from_millis(c.int(&k("source.timeout_ms"), s.timeout_ms.unwrap_or(2000), 1, 3_600_000)?),
+                free_run,
+            })
+        }
+        other => return Err(c.err(k("source.kind"), format!("{other:?}"), "is not one of \"sim\", \"dir\", \"video\", \"genicam\"")),
     })
 }
 
@@ -1004,6 +1050,38 @@ mod tests {
         assert!(e.contains("modbus.bind"), "{e}");
         let e = err(&format!("{MIN}[camera.calibration]\npoints = [[0, 0, 0, 0]]\n"));
         assert!(e.contains("calibration.points") && e.contains("at least 4"), "{e}");
+    }
+
+    #[test]
+    fn a_genicam_source_takes_its_keys_and_a_hardware_trigger_makes_frames_the_acquisitions() {
+        let cam = |trigger: &str, src: &str| {
+            format!("[[camera]]\nunit_id = 1\nkb = \"kb.toml\"\n{trigger}[camera.source]\nkind = \"genicam\"\n{src}")
+        };
+        let c = Config::from_toml(
+            &cam("", "device = \"Basler-123\"\nexposure_us = 8000\ngain = 2.5\npixel_format = \"Mono12\"\npacket_size = 9000\ntimeout_ms = 1500\n"),
+            Path::new("x.toml"),
+        )
+        .unwrap();
+        let SourceConfig::Genicam(g) = &c.cameras[0].source else { panic!("genicam") };
+        assert_eq!(
+            (g.device.as_deref(), g.exposure_us, g.gain, g.pixel_format.as_deref(), g.packet_size, g.timeout, g.free_run),
+            (Some("Basler-123"), Some(8000.0), Some(2.5), Some("Mono12"), Some(9000), Duration::from_millis(1500), false)
+        );
+        assert_eq!(c.cameras[0].trigger, Trigger::Modbus, "software trigger from the PLC's TRIGGER");
+        let hw = Config::from_toml(&cam("", "hardware_trigger = \"Line0\"\n"), Path::new("x.toml")).unwrap();
+        assert_eq!(hw.cameras[0].trigger, Trigger::FreeRun, "every frame the camera sends is an acquisition");
+        let free = Config::from_toml(&cam("trigger = \"free-run\"\n", ""), Path::new("x.toml")).unwrap();
+        assert!(matches!(&free.cameras[0].source, SourceConfig::Genicam(g) if g.free_run && g.timeout == Duration::from_millis(2000)));
+        for (src, trigger, says) in [
+            ("hardware_trigger = \"Line0\"\n", "trigger = \"free-run\"\n", "camera[0].trigger"),
+            ("packet_size = 100\n", "", "camera[0].source.packet_size"),
+            ("exposure_us = 0\n", "", "camera[0].source.exposure_us"),
+            ("device = \"\"\n", "", "camera[0].source.device"),
+            ("uri = \"0\"\n", "", "camera[0].source.uri"),
+        ] {
+            let e = err(&cam(trigger, src));
+            assert!(e.contains(says), "{src}: {e}");
+        }
     }
 
     #[test]

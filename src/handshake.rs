@@ -209,6 +209,8 @@ pub struct Handshake {
     error_code: u16,
     overrun: bool,
     camera_ok: bool,
+    /// CAMERA_OK was reported true at least once.
+    camera_seen: bool,
     heartbeat: u16,
     acq_count: u16,
     overrun_count: u16,
@@ -255,6 +257,7 @@ impl Handshake {
             error_code: error_code::NONE,
             overrun: false,
             camera_ok: true,
+            camera_seen: false,
             heartbeat: 0,
             acq_count: 0,
             overrun_count: 0,
@@ -595,8 +598,16 @@ impl Handshake {
         results
     }
 
-    /// The camera's state (CAMERA_OK); READY follows it.
+    /// The camera's state (CAMERA_OK), as the shell sees it now; READY follows it. A camera
+    /// that was seen working and is lost (cable pulled, power cycle) is a camera fault: ERROR
+    /// with ERROR_CODE 1 without waiting for a trigger, cleared by CLEAR_ERROR as any fault.
+    /// One never seen working (not found at start-up) only keeps CAMERA_OK at 0.
     pub fn set_camera_ok(&mut self, ok: bool) {
+        if self.camera_ok && !ok && self.camera_seen && !self.error {
+            self.error = true;
+            self.error_code = error_code::CAMERA;
+        }
+        self.camera_seen |= ok;
         self.camera_ok = ok;
     }
     /// CAMERA_OK.

@@ -170,6 +170,26 @@ fn a_trigger_while_busy_offline_or_in_error_is_missed() {
 }
 
 #[test]
+fn a_camera_lost_between_triggers_is_a_camera_fault_at_once_and_one_never_seen_only_not_ok() {
+    // Not found at start-up: CAMERA_OK 0 and READY 0, but no fault to clear.
+    let mut h = hs(8);
+    h.set_camera_ok(false);
+    assert_eq!(h.word(addr::STATUS) & (status::CAMERA_OK | status::READY | status::ERROR), 0);
+    // Found, then lost (cable pulled): ERROR with ERROR_CODE 1, no trigger needed.
+    h.set_camera_ok(true);
+    h.set_camera_ok(true);
+    assert_eq!(h.word(addr::STATUS) & (status::CAMERA_OK | status::READY | status::ERROR), status::CAMERA_OK | status::READY);
+    h.set_camera_ok(false);
+    assert_eq!(h.word(addr::STATUS) & (status::CAMERA_OK | status::READY | status::ERROR), status::ERROR);
+    assert_eq!(h.word(addr::ERROR_CODE), error_code::CAMERA);
+    // Back again: CAMERA_OK at once, READY only once the PLC has cleared the fault.
+    h.set_camera_ok(true);
+    assert_eq!(h.word(addr::STATUS) & (status::CAMERA_OK | status::READY | status::ERROR), status::CAMERA_OK | status::ERROR);
+    h.write(addr::CLEAR_ERROR, 1, ms(5));
+    assert_eq!(h.word(addr::STATUS) & (status::CAMERA_OK | status::READY | status::ERROR), status::CAMERA_OK | status::READY);
+}
+
+#[test]
 fn a_camera_fault_sets_error_queues_a_frame_error_and_clear_error_clears_it() {
     let mut h = hs(8);
     let id = trigger(&mut h, 0).unwrap();

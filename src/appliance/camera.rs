@@ -196,7 +196,8 @@ impl Worker {
         }
     }
 
-    fn update_camera_ok(&self) {
+    fn update_camera_ok(&mut self) {
+        self.source.maintain();
         let ok = self.source.ok();
         let mut hs = self.handshake.lock().unwrap_or_else(|p| p.into_inner());
         if hs.camera_ok() != ok {
@@ -205,8 +206,9 @@ impl Worker {
             } else {
                 tracing::warn!(camera = %self.name, "camera not OK");
             }
-            hs.set_camera_ok(ok);
         }
+        // Every look, not only changes: the handshake tells a lost camera from one never seen.
+        hs.set_camera_ok(ok);
     }
 
     fn process(&mut self, acq_id: u16, frame: Result<super::source::Frame, SourceError>, t0: Instant) {

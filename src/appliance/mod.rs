@@ -5,6 +5,7 @@
 pub mod archive;
 pub mod camera;
 pub mod enrol;
+pub mod genicam;
 pub mod source;
 
 use std::net::SocketAddr;
@@ -102,6 +103,8 @@ pub struct CameraHandle {
     pub robot: Option<Arc<Mutex<crate::registers::RobotView>>>,
     /// The image archive (its counters, and where to read it back), if one is configured.
     pub archive: Option<archive::Shelf>,
+    /// A GenICam camera's model, format and frame counters.
+    pub genicam: Option<Arc<genicam::GenicamStats>>,
     /// The configured jobs (id, name), for the operator view.
     pub jobs: Vec<(u16, String)>,
     /// Into the camera's worker, as the Modbus server sends (job changes from the page).
@@ -176,8 +179,17 @@ pub fn load_job(camera: &str, job: &JobConfig, source: &SourceConfig, base: &Par
     Ok(Loaded { kb, kb_desc, estimator, params, calibration })
 }
 
-fn source_for(cam: &CameraConfig) -> Result<Box<dyn Source>, StartError> {
-    Ok(match &cam.source {
+/// A camera's source, and a GenICam camera's counters for the page and `/metrics`.
+type SourceWithStats = (Box<dyn Source>, Option<Arc<genicam::GenicamStats>>);
+
+/// The camera's source (see [`SourceWithStats`]).
+fn source_for(cam: &CameraConfig) -> Result<SourceWithStats, StartError> {
+    if let SourceConfig::Genicam(settings) = &cam.source {
+        let src = genicam::GenicamSource::new(&cam.name, settings.clone());
+        let stats = src.stats();
+        return Ok((Box::new(src), Some(stats)));
+    }
+    let source: Box<dyn Source> = match &cam.source {
         SourceConfig::Sim { seed, width, height, noise, scenes, interval } => {
             let sim = Simulator::new(SimSource::config(*seed, *width, *height, *noise))
                 .map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })?;
@@ -194,7 +206,9 @@ fn source_for(cam: &CameraConfig) -> Result<Box<dyn Source>, StartError> {
             Box::new(DirSource::new(path, *settle, *timeout))
         }
         SourceConfig::Video { uri, timeout } => Box::new(VideoSource::new(uri, *timeout)),
-    })
+        SourceConfig::Genicam(_) => unreachable!("handled above"),
+    };
+    Ok((source, None))
 }
 
 /// A random, non-zero BOOT_ID for this start.
@@ -247,7 +261,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
         })));
         let (tx, rx) = std::sync::mpsc::channel();
         let live = Arc::new(Mutex::new(Live::default()));
-        let source = source_for(cam)?;
+        let (source, genicam) = source_for(cam)?;
         let (robot_tx, robot_view) = match &cam.robot {
             Some(rc) => {
                 let (rtx, rrx) = tokio::sync::mpsc::unbounded_channel();
@@ -305,6 +319,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             templates,
             robot: robot_view,
             archive: shelf,
+            genicam,
             commands: tx.clone(),
             jobs: cam.jobs.iter().map(|j| (j.id, j.name.clone())).collect(),
             thread: Mutex::new(Some(thread)),

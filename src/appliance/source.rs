@@ -42,6 +42,8 @@ pub trait Source: Send {
     fn next(&mut self, wait: Duration) -> Result<Frame, SourceError>;
     /// Whether the camera is currently usable (CAMERA_OK).
     fn ok(&self) -> bool;
+    /// Housekeeping between frames (reconnecting a lost camera); called while the worker idles.
+    fn maintain(&mut self) {}
 }
 
 /// The built-in simulated camera: scenes rendered once at start-up, served in turn.

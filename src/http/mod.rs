@@ -208,7 +208,7 @@ fn nan_to_zero(v: f64) -> f64 {
 }
 
 /// Metric families: name, type, help.
-const FAMILIES: [(&str, &str, &str); 23] = [
+const FAMILIES: [(&str, &str, &str); 27] = [
     ("lfi_modbus_clients", "gauge", "Modbus/TCP clients connected."),
     ("lfi_modbus_requests_total", "counter", "Modbus requests answered."),
     ("lfi_modbus_exceptions_total", "counter", "Modbus requests answered with an exception."),
@@ -228,6 +228,10 @@ const FAMILIES: [(&str, &str, &str); 23] = [
     ("lfi_robot_connected", "gauge", "1 when the robot link is connected."),
     ("lfi_robot_queue", "gauge", "Parts waiting for the robot."),
     ("lfi_robot_delivered", "gauge", "Parts the robot acknowledged (16-bit counter)."),
+    ("lfi_camera_frames_received_total", "counter", "Complete frames received from a GenICam camera."),
+    ("lfi_camera_frames_dropped_total", "counter", "GenICam frames dropped in free-run because a newer one was there."),
+    ("lfi_camera_frames_incomplete_total", "counter", "Incomplete or corrupt GenICam buffers (dropped)."),
+    ("lfi_camera_reconnects_total", "counter", "Reconnections of a lost GenICam camera."),
     ("lfi_archive_saved_total", "counter", "Frames written to the image archive."),
     ("lfi_archive_dropped_total", "counter", "Frames not archived: the archive's queue was full (the disk is slower than the line)."),
     ("lfi_archive_failed_total", "counter", "Frames the archive could not write (logged)."),
@@ -284,6 +288,20 @@ async fn metrics(State(state): State<AppState>) -> Response {
                 "lfi_robot_delivered" => {
                     if let Some(v) = robot {
                         line(v.delivered.to_string())
+                    }
+                }
+                "lfi_camera_frames_received_total"
+                | "lfi_camera_frames_dropped_total"
+                | "lfi_camera_frames_incomplete_total"
+                | "lfi_camera_reconnects_total" => {
+                    if let Some(g) = &c.genicam {
+                        let v = match name {
+                            "lfi_camera_frames_received_total" => &g.received,
+                            "lfi_camera_frames_dropped_total" => &g.dropped,
+                            "lfi_camera_frames_incomplete_total" => &g.incomplete,
+                            _ => &g.reconnects,
+                        };
+                        line(v.load(Relaxed).to_string())
                     }
                 }
                 "lfi_archive_saved_total" | "lfi_archive_dropped_total" | "lfi_archive_failed_total" | "lfi_archive_deleted_total" => {
@@ -374,6 +392,19 @@ struct CameraView {
     parts: Vec<PartView>,
     last_error: Option<String>,
     job: JobView,
+    /// A GenICam camera: what it is and what it delivered.
+    genicam: Option<GenicamView>,
+}
+
+/// A GenICam camera on the page.
+#[derive(Serialize)]
+struct GenicamView {
+    /// None until the camera was first connected.
+    camera: Option<crate::appliance::genicam::CameraInfo>,
+    received: u64,
+    dropped: u64,
+    incomplete: u64,
+    reconnects: u64,
 }
 
 /// The job in force and the last change, from the same snapshot as the registers.
@@ -484,6 +515,17 @@ fn camera_view(c: &CameraHandle) -> CameraView {
         parts: part_views(&live),
         last_error: live.last_error.clone(),
         job,
+        genicam: c.genicam.as_ref().map(|g| {
+            use std::sync::atomic::Ordering::Relaxed;
+            let info = g.info.lock().unwrap_or_else(|p| p.into_inner()).clone();
+            GenicamView {
+                camera: info,
+                received: g.received.load(Relaxed),
+                dropped: g.dropped.load(Relaxed),
+                incomplete: g.incomplete.load(Relaxed),
+                reconnects: g.reconnects.load(Relaxed),
+            }
+        }),
     }
 }
 
