@@ -3,8 +3,8 @@
 //!
 //! The source owns the camera and its stream. It applies the configured features at every
 //! connection (a power-cycled camera forgets them), names a feature the camera lacks or a value
-//! it refuses together with what it allows, and reconnects with back-off when Aravis reports the
-//! control channel lost. Which pixels become which gray level is [`to_gray`], a pure function.
+//! it refuses together with what it allows, and reconnects with back-off when the camera is lost
+//! (Aravis reports the control channel lost, or a prober thread gets no answer). Which pixels become which gray level is [`to_gray`], a pure function.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -98,10 +98,38 @@ struct Connection {
 }
 
 impl Connection {
-    /// Neither lost by Aravis's word nor silent beyond [`ANSWER_WITHIN`].
-    fn alive(&self) -> bool {
+    /// Why the camera counts as lost: by Aravis's word, or silent beyond [`ANSWER_WITHIN`].
+    fn loss(&self) -> Option<String> {
         let silent = self.since.elapsed().saturating_sub(Duration::from_millis(self.answered_ms.load(Ordering::SeqCst)));
-        !self.lost.load(Ordering::SeqCst) && silent < ANSWER_WITHIN
+        if self.lost.load(Ordering::SeqCst) {
+            Some("control channel lost".into())
+        } else if silent >= ANSWER_WITHIN {
+            Some(format!("no answer for {} ms", ANSWER_WITHIN.as_millis()))
+        } else {
+            None
+        }
+    }
+}
+
+/// How frames are started, from the settings (the configuration refuses a hardware trigger
+/// with free-run).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Mode<'a> {
+    /// One software trigger per PLC trigger.
+    Software,
+    /// Streaming; the newest frame is taken.
+    FreeRun,
+    /// Fired on this line; every frame is taken.
+    Hardware(&'a str),
+}
+
+impl GenicamSettings {
+    fn mode(&self) -> Mode<'_> {
+        match (&self.hardware_trigger, self.free_run) {
+            (Some(line), _) => Mode::Hardware(line),
+            (None, true) => Mode::FreeRun,
+            (None, false) => Mode::Software,
+        }
     }
 }
 
@@ -214,16 +242,16 @@ impl GenicamSource {
         {
             warn(&format!("packet_size = {size} refused"), &e);
         }
-        let trigger = match (&s.hardware_trigger, s.free_run) {
-            (Some(line), _) => camera.set_trigger(line).map_err(|e| {
+        let trigger = match s.mode() {
+            Mode::Hardware(line) => camera.set_trigger(line).map_err(|e| {
                 let lines = camera.dup_available_trigger_sources().map(|v| v.join(", ")).unwrap_or_default();
                 format!("hardware_trigger = {line:?} refused (trigger sources: {lines}): {e}")
             }),
-            (None, true) => camera
+            Mode::FreeRun => camera
                 .clear_triggers()
                 .and_then(|_| camera.set_acquisition_mode(aravis::AcquisitionMode::Continuous))
                 .map_err(|e| format!("free-run: {e}")),
-            (None, false) => camera.set_trigger("Software").map_err(|e| format!("software trigger refused: {e}")),
+            Mode::Software => camera.set_trigger("Software").map_err(|e| format!("software trigger refused: {e}")),
         };
         trigger?;
         let payload = camera.payload().map_err(|e| format!("payload size: {e}"))? as usize;
@@ -263,10 +291,10 @@ impl GenicamSource {
             info.width,
             info.height,
             info.exposure_us.map_or("n/a".into(), |e| format!("{e} us")),
-            match (&s.hardware_trigger, s.free_run) {
-                (Some(l), _) => format!("hardware trigger on {l}"),
-                (None, true) => "free-running".into(),
-                (None, false) => "software trigger".into(),
+            match s.mode() {
+                Mode::Hardware(l) => format!("hardware trigger on {l}"),
+                Mode::FreeRun => "free-running".into(),
+                Mode::Software => "software trigger".into(),
             }
         );
         *self.stats.info.lock().unwrap_or_else(|p| p.into_inner()) = Some(info);
@@ -312,10 +340,10 @@ impl GenicamSource {
         let Some(c) = &self.conn else { return Err(Popped::Failed(SourceError::Camera(format!("{} is not connected", self.label())))) };
         let until = Instant::now() + wait;
         loop {
-            if !c.alive() {
+            if let Some(why) = c.loss() {
                 let label = self.label();
-                self.disconnect("control channel lost or no answer");
-                return Err(Popped::Failed(SourceError::Camera(format!("{label}: the camera was lost (no answer)"))));
+                self.disconnect(&why);
+                return Err(Popped::Failed(SourceError::Camera(format!("{label}: camera lost: {why}"))));
             }
             let left = until.saturating_duration_since(Instant::now());
             // Wait in slices, so that a lost camera is seen within one.
@@ -367,7 +395,7 @@ impl GenicamSource {
 
 impl Source for GenicamSource {
     fn grab(&mut self) -> Result<Frame, SourceError> {
-        if self.settings.hardware_trigger.is_some() || self.settings.free_run {
+        if self.settings.mode() != Mode::Software {
             return self.next(self.settings.timeout);
         }
         // One frame per trigger: a frame that arrives incomplete (packets lost on the wire) is
@@ -400,7 +428,7 @@ impl Source for GenicamSource {
     }
 
     fn next(&mut self, wait: Duration) -> Result<Frame, SourceError> {
-        let newest = self.settings.free_run;
+        let newest = self.settings.mode() == Mode::FreeRun;
         self.pop(wait, newest, false).map_err(|p| match p {
             Popped::Failed(e) => e,
             Popped::Incomplete => SourceError::Timeout(wait.as_millis()),
@@ -408,15 +436,12 @@ impl Source for GenicamSource {
     }
 
     fn ok(&self) -> bool {
-        self.conn.as_ref().is_some_and(Connection::alive)
+        self.conn.as_ref().is_some_and(|c| c.loss().is_none())
     }
 
     fn maintain(&mut self) {
-        if self.conn.as_ref().is_some_and(|c| c.lost.load(Ordering::SeqCst)) {
-            self.disconnect("control channel lost");
-        }
-        if self.conn.as_ref().is_some_and(|c| !c.alive()) {
-            self.disconnect(&format!("no answer for {} ms", ANSWER_WITHIN.as_millis()));
+        if let Some(why) = self.conn.as_ref().and_then(Connection::loss) {
+            self.disconnect(&why);
         }
         if self.conn.is_some() || Instant::now() < self.retry_at {
             return;

@@ -647,10 +647,7 @@ async fn change_job(
     headers: HeaderMap,
     axum::Json(req): axum::Json<JobRequest>,
 ) -> Result<Response, Failure> {
-    if let Err(e) = authorized(&state, &headers) {
-        tracing::warn!(%peer, "refused a job change request: {}", e.1);
-        return Err(e);
-    }
+    authorized(&state, &headers, peer, "a job change")?;
     let cam = camera(&state, unit)?;
     cam.request_job(req.id).map_err(|e| {
         let status = match e {
@@ -723,7 +720,13 @@ struct EnrollRequest {
     face: String,
 }
 
-fn authorized(state: &AppState, headers: &HeaderMap) -> Result<(), Failure> {
+/// Whether `headers` carry the token for a change (`what`, for the log); a refusal is logged
+/// with the client's address.
+fn authorized(state: &AppState, headers: &HeaderMap, peer: SocketAddr, what: &str) -> Result<(), Failure> {
+    check_token(state, headers).inspect_err(|e| tracing::warn!(%peer, "refused {what} request: {}", e.1))
+}
+
+fn check_token(state: &AppState, headers: &HeaderMap) -> Result<(), Failure> {
     let Some(token) = &state.token else {
         return Err((
             StatusCode::FORBIDDEN,
@@ -743,10 +746,7 @@ async fn enroll(
     headers: HeaderMap,
     axum::Json(req): axum::Json<EnrollRequest>,
 ) -> Result<Response, Failure> {
-    if let Err(e) = authorized(&state, &headers) {
-        tracing::warn!(%peer, "refused an enrollment request: {}", e.1);
-        return Err(e);
-    }
+    authorized(&state, &headers, peer, "an enrollment")?;
     let cam = camera(&state, unit)?;
     let face: Face = req.face.parse().map_err(|e: String| (StatusCode::BAD_REQUEST, e))?;
     let request =
