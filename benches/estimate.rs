@@ -37,8 +37,8 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn stage_table(est: &Estimator, frames: &[(&str, GrayImage)]) {
     println!("\nper-stage medians over 60 runs (ms), 2592 x 1944, one OpenCV thread");
     println!(
-        "{:<20} {:>5} {:>7} {:>8} {:>6} {:>9} {:>8} {:>10} {:>7} {:>7}",
-        "frame", "parts", "detect", "boundary", "lines", "correlate", "register", "confidence", "several", "total"
+        "{:<20} {:>5} {:>7} {:>8} {:>6} {:>9} {:>8} {:>10} {:>7} {:>6} {:>7}",
+        "frame", "parts", "detect", "boundary", "lines", "correlate", "register", "confidence", "several", "(vote)", "total"
     );
     for (name, img) in frames {
         let runs: Vec<(usize, Timings)> = (0..60)
@@ -49,7 +49,7 @@ fn stage_table(est: &Estimator, frames: &[(&str, GrayImage)]) {
             .collect();
         let m = |f: fn(&Timings) -> f64| median(runs.iter().map(|r| f(&r.1)).collect());
         println!(
-            "{:<20} {:>5} {:>7.2} {:>8.2} {:>6.2} {:>9.2} {:>8.2} {:>10.2} {:>7.2} {:>7.2}",
+            "{:<20} {:>5} {:>7.2} {:>8.2} {:>6.2} {:>9.2} {:>8.2} {:>10.2} {:>7.2} {:>6.2} {:>7.2}",
             name,
             runs[0].0,
             m(|t| t.detect),
@@ -59,6 +59,7 @@ fn stage_table(est: &Estimator, frames: &[(&str, GrayImage)]) {
             m(|t| t.register),
             m(|t| t.confidence),
             m(|t| t.clump),
+            m(|t| t.vote),
             m(|t| t.total)
         );
     }

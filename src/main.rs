@@ -344,7 +344,7 @@ fn estimate(kb_path: &Path, json: bool, overlay_dir: Option<&Path>, repeat: usiz
                 } else {
                     let t = fe.timings;
                     println!(
-                        "{shown}: {} part(s), {} debris, {ms:.1} ms (detect {:.1}, boundary {:.1}, lines {:.1}, correlate {:.1}, register {:.1}, confidence {:.1}, several parts {:.1}), noise sigma {:.1}",
+                        "{shown}: {} part(s), {} debris, {ms:.1} ms (detect {:.1}, boundary {:.1}, lines {:.1}, correlate {:.1}, register {:.1}, confidence {:.1}, several parts {:.1} of which vote {:.1}), noise sigma {:.1}",
                         fe.parts.len(),
                         fe.debris,
                         t.detect,
@@ -354,6 +354,7 @@ fn estimate(kb_path: &Path, json: bool, overlay_dir: Option<&Path>, repeat: usiz
                         t.register,
                         t.confidence,
                         t.clump,
+                        t.vote,
                         fe.noise_sigma
                     );
                     for p in &fe.parts {
@@ -400,6 +401,7 @@ fn median_run(mut runs: Vec<(f64, lfi_bridge::vision::FrameEstimate)>) -> (f64, 
         register: med(&|t| t.register, &runs),
         confidence: med(&|t| t.confidence, &runs),
         clump: med(&|t| t.clump, &runs),
+        vote: med(&|t| t.vote, &runs),
         total: 0.0,
     };
     runs.sort_by(|a, b| a.0.total_cmp(&b.0));

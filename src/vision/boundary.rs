@@ -54,13 +54,11 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     let k = (2 * half + 1) as usize;
     let ts: Vec<f64> = (-half..=half).map(|i| i as f64 * STEP).collect();
 
-    // Raw profiles: one bilinear remap of all sample positions (vectorised in OpenCV).
-    let raw = match sample(frame, &smooth, &normals, &ts) {
-        Ok(v) => v,
-        Err(_) => {
-            return Refined { outline: pts, contrast: 0.0 };
-        }
-    };
+    // Raw profiles: the frame sampled bilinearly along each normal (edges replicated).
+    let mut raw = Vec::with_capacity(n * k);
+    for (b, nn) in smooth.iter().zip(&normals) {
+        raw.extend(ts.iter().map(|t| frame.bilinear(b.x + nn.x * t, b.y + nn.y * t)));
+    }
     // Gaussian kernel along the profile.
     let sig = (p.profile_sigma / STEP).max(0.5);
     let kr = (3.0 * sig).ceil() as isize;
@@ -79,14 +77,20 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
         }
     }
     let mut sm = vec![0.0f64; n * k];
+    // The averaged profile with its end values repeated kernel-radius times on either side, so
+    // that the convolution needs no index clamping.
+    let r = kr as usize;
+    let mut padded = vec![0.0f64; k + 2 * r];
     for i in 0..n {
-        for j in 0..k {
+        padded[..r].fill(acc[0]);
+        padded[r..r + k].copy_from_slice(&acc);
+        padded[r + k..].fill(acc[k - 1]);
+        for (j, out) in sm[i * k..(i + 1) * k].iter_mut().enumerate() {
             let mut s = 0.0;
-            for (q, w) in kernel.iter().enumerate() {
-                let jj = (j as isize + q as isize - kr).clamp(0, k as isize - 1) as usize;
-                s += w * acc[jj];
+            for (w, v) in kernel.iter().zip(&padded[j..j + kernel.len()]) {
+                s += w * v;
             }
-            sm[i * k + j] = s * norm;
+            *out = s * norm;
         }
         // Slide the window: drop profile i - m, add profile i + m + 1.
         let out = (i + n - m) % n;
@@ -100,7 +104,10 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     // dark groove, so the inner ends alone may read as dark as the belt). Extreme = brightest for
     // parts brighter than the belt, darkest otherwise.
     let ends = (2.0 / STEP) as usize + 1;
-    let mut outer: Vec<f64> = (0..n).flat_map(|i| sm[(i + 1) * k - ends..(i + 1) * k].to_vec()).collect();
+    let mut outer: Vec<f64> = Vec::with_capacity(n * ends);
+    for i in 0..n {
+        outer.extend_from_slice(&sm[(i + 1) * k - ends..(i + 1) * k]);
+    }
     let l_belt = median(&mut outer);
     let mut hi: Vec<f64> = (0..n).map(|i| sm[i * k..i * k + half as usize].iter().cloned().fold(f64::MIN, f64::max)).collect();
     let mut lo: Vec<f64> = (0..n).map(|i| sm[i * k..i * k + half as usize].iter().cloned().fold(f64::MAX, f64::min)).collect();
@@ -141,31 +148,6 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
         return Refined { outline: smooth, contrast };
     }
     Refined { outline, contrast }
-}
-
-/// Samples the frame at `base[i] + normal[i] * t` for every t, row i of an n x k array.
-fn sample(frame: GrayView<'_>, base: &[Pt], normals: &[Pt], ts: &[f64]) -> opencv::Result<Vec<f64>> {
-    use opencv::core::{self, Mat, Scalar};
-    use opencv::prelude::*;
-    let (n, k) = (base.len(), ts.len());
-    let mut mx = Vec::with_capacity(n * k);
-    let mut my = Vec::with_capacity(n * k);
-    for (b, nn) in base.iter().zip(normals) {
-        for t in ts {
-            mx.push((b.x + nn.x * t) as f32);
-            my.push((b.y + nn.y * t) as f32);
-        }
-    }
-    let map_x = Mat::new_rows_cols_with_data(n as i32, k as i32, &mx)?;
-    let map_y = Mat::new_rows_cols_with_data(n as i32, k as i32, &my)?;
-    let src = frame.as_mat().map_err(|e| opencv::Error::new(core::StsError, e.to_string()))?;
-    let mut out = Mat::default();
-    opencv::imgproc::remap(&src, &mut out, &map_x, &map_y, opencv::imgproc::INTER_LINEAR, core::BORDER_REPLICATE, Scalar::all(0.0))?;
-    // The 8-bit result is rounded to whole gray levels (sigma 0.3), negligible beside the
-    // averaging that follows and far cheaper than converting the frame to float.
-    let mut outf = Mat::default();
-    out.convert_to(&mut outf, core::CV_64F, 1.0, 0.0)?;
-    Ok(outf.data_typed::<f64>()?.to_vec())
 }
 
 fn median(v: &mut [f64]) -> f64 {

@@ -138,6 +138,8 @@ pub struct Explained {
     pub parts: Vec<Found>,
     /// Material of the region that no found part explains: (area in frame pixels, centroid).
     pub leftover: Vec<(f64, Pt)>,
+    /// Wall time of the vote, milliseconds (the rest of the region's time is verification).
+    pub vote_ms: f64,
 }
 
 /// Least support for a hypothesis to stand for a physical part at all.
@@ -152,8 +154,10 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     }
     let (lo, hi) = bounds(region.outline);
     let mut hyps: Vec<(usize, Similarity, u32)> = Vec::new();
+    let voting = std::time::Instant::now();
+    let mut acc = Accumulator::new(lo, hi);
     for (ei, e) in lib.entries.iter().enumerate() {
-        for (pose, votes) in vote(&e.shape, e.template.centroid, &scene, lo, hi) {
+        for (pose, votes) in vote(&mut acc, &e.shape, e.template.centroid, &scene) {
             hyps.push((ei, pose, votes));
         }
     }
@@ -164,7 +168,8 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         fb.total_cmp(&fa)
     });
     hyps.truncate(MAX_HYPOTHESES);
-    let ext = OutlineIndex::new(region.outline);
+    let vote_ms = voting.elapsed().as_secs_f64() * 1e3;
+    let ext = OutlineIndex::of_frame(region.outline);
     let edge = EdgeTest::new(region.coarse, region.noise, region.contrast);
     let mut found: Vec<Found> = Vec::new();
     for (ei, init, _) in hyps {
@@ -177,7 +182,7 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             .map(|k| {
                 let mut pose = init;
                 pose.angle_rad += (k as f64 * ANGLE_SEARCH_STEP).to_radians();
-                (pose, verify(&e.shape, &pose, &ext, &edge, 2.0 * tol, 8, false).0)
+                (pose, support(&e.shape, &pose, &ext, &edge, 2.0 * tol, 8))
             })
             .max_by(|a, b| a.1.total_cmp(&b.1))
             .map_or(init, |(pose, _)| pose);
@@ -186,7 +191,7 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         let duplicate = found.iter().any(|f| {
             f.entry == ei && (f.reg.pose.to - init.to).norm() < 20.0 && angle_diff_deg(f.reg.pose.angle_deg(), init.angle_deg()).abs() < 4.0
         });
-        if duplicate || verify(&e.shape, &init, &ext, &edge, 2.0 * tol, 4, false).0 < MIN_SUPPORT - 0.2 {
+        if duplicate || support(&e.shape, &init, &ext, &edge, 2.0 * tol, 4) < MIN_SUPPORT - 0.2 {
             continue;
         }
         // Registration on the stretch of the region's outline the part can reach: the rest is
@@ -197,11 +202,11 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             continue;
         }
         let rough = register::register(&local, &e.index, init, tol, 4);
-        if verify(&e.shape, &rough.pose, &ext, &edge, tol, 3, false).0 < MIN_SUPPORT - 0.05 {
+        if support(&e.shape, &rough.pose, &ext, &edge, tol, 3) < MIN_SUPPORT - 0.05 {
             continue;
         }
         let reg = register::register(&local, &e.index, rough.pose, tol, 2);
-        let (support, points) = verify(&e.shape, &reg.pose, &ext, &edge, tol, 1, true);
+        let (support, points) = verify(&e.shape, &reg.pose, &ext, &edge, tol);
         if support < MIN_SUPPORT {
             continue;
         }
@@ -279,6 +284,12 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
                 continue; // touching at most
             }
             let (ii, kk) = (inside(&found[i].points, &eroded[k]), inside(&found[k].points, &eroded[i]));
+            // The steps across are measured here, where they tell something, not for every point.
+            for (x, idx) in [(i, &ii), (k, &kk)] {
+                for &j in idx {
+                    found[x].points[j].across(&edge);
+                }
+            }
             let (si, sk) = (strength(&found[i].points, &ii), strength(&found[k].points, &kk));
             let m = edge.margin;
             // The most telling measure is how much of each outline shows as an edge at all; the
@@ -331,7 +342,7 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             f
         })
         .collect();
-    Explained { parts, leftover }
+    Explained { parts, leftover, vote_ms }
 }
 
 /// A direction's display angle in [`FINE`] steps.
@@ -359,64 +370,106 @@ fn oriented_points(outline: &[Pt]) -> Vec<(Pt, usize, i32)> {
         .collect()
 }
 
+/// The vote accumulator over a region: rotation bins x centroid cells, reused by every
+/// template. Only the cells a template's votes touched are read and cleared again: a pair's
+/// region has some 0.2 M cells, of which its votes touch a fraction.
+struct Accumulator {
+    lo: Pt,
+    nx: usize,
+    ny: usize,
+    /// Per cell: the votes, and the sum of their fine angles relative to their bin's start, in
+    /// one 32-bit word (a cell would need thousands of votes to saturate either).
+    cells: Vec<[u16; 2]>,
+    /// Cells with a vote (to clear).
+    touched: Vec<u32>,
+    /// Cells that reached the candidate floor.
+    tall: Vec<u32>,
+}
+
+impl Accumulator {
+    /// An empty accumulator for centroids in the box `lo`..`hi` (a part's centroid lies within
+    /// its bounding box, which lies within the region's).
+    fn new(lo: Pt, hi: Pt) -> Self {
+        let nx = (((hi.x - lo.x) / CELL).ceil() as usize + 1).max(1);
+        let ny = (((hi.y - lo.y) / CELL).ceil() as usize + 1).max(1);
+        let n = ANGLE_BINS * nx * ny;
+        Self { lo, nx, ny, cells: vec![[0; 2]; n], touched: Vec::new(), tall: Vec::new() }
+    }
+}
+
 /// Generalised Hough vote of one template over the region: its best few poses (scale 1) and
 /// their votes (3 x 3 x 3 cells around the peak).
-fn vote(model: &ShapeModel, centroid: Pt, scene: &[(Pt, usize, i32)], lo: Pt, hi: Pt) -> Vec<(Similarity, u32)> {
-    // A part's centroid lies within its bounding box, which lies within the region's.
-    let nx = (((hi.x - lo.x) / CELL).ceil() as usize + 1).max(1);
-    let ny = (((hi.y - lo.y) / CELL).ceil() as usize + 1).max(1);
+fn vote(acc: &mut Accumulator, model: &ShapeModel, centroid: Pt, scene: &[(Pt, usize, i32)]) -> Vec<(Similarity, u32)> {
+    let (lo, nx, ny) = (acc.lo, acc.nx, acc.ny);
     let plane = nx * ny;
-    let mut acc = vec![0u16; ANGLE_BINS * plane];
-    let mut turns = vec![0u32; ANGLE_BINS * plane];
     let fine_step = std::f64::consts::TAU / FINE as f64;
-    let lut: Vec<(f64, f64)> = (0..FINE).map(|b| (b as f64 * fine_step).sin_cos()).collect();
+    // The rotation table scaled to accumulator cells, so that the inner loop needs no division.
+    let lut: Vec<(f64, f64)> = (0..FINE)
+        .map(|b| {
+            let (s, c) = (b as f64 * fine_step).sin_cos();
+            (s / CELL, c / CELL)
+        })
+        .collect();
     let per_bin = FINE / ANGLE_BINS;
+    // Candidate cells: the raw count is at least a twentieth of the model's points.
+    let floor = (model.vote.len() / 20).clamp(3, u16::MAX as usize) as u16;
     // Each bin's votes, and the sum of their fine angles relative to the bin's start, so that a
     // peak's angle is the mean of its votes rather than the bin's centre.
     for &(p, beta, turn) in scene {
         // Only points where the outlines bend alike can correspond: a fraction of the pairs.
         let from = model.vote.partition_point(|v| v.2 < turn - TURN_TOLERANCE);
         let to = model.vote.partition_point(|v| v.2 <= turn + TURN_TOLERANCE);
+        let (px, py) = ((p.x - lo.x) / CELL, (p.y - lo.y) / CELL);
+        let (nxf, nyf) = (nx as f64, ny as f64);
         for &(d, alpha, _) in &model.vote[from..to] {
-            let fine = (beta + FINE - alpha) % FINE;
+            let fine = if beta >= alpha { beta - alpha } else { beta + FINE - alpha };
             let b = fine / per_bin;
             let (s, c) = lut[fine];
-            // rotate_display(d, theta) with the bin's angle.
-            let cx = p.x + c * d.x + s * d.y;
-            let cy = p.y - s * d.x + c * d.y;
-            let ix = ((cx - lo.x) / CELL).floor();
-            let iy = ((cy - lo.y) / CELL).floor();
-            if ix < 0.0 || iy < 0.0 || ix >= nx as f64 || iy >= ny as f64 {
+            // The centroid p + rotate_display(d, theta) with the pair's angle, in cells.
+            let ix = px + c * d.x + s * d.y;
+            let iy = py - s * d.x + c * d.y;
+            // Inside the accumulator (compared as floats: a float-to-integer cast costs a dozen
+            // instructions here), truncation is the floor (and needs no libm call).
+            if !(ix >= 0.0 && iy >= 0.0 && ix < nxf && iy < nyf) {
                 continue;
             }
             let k = b * plane + iy as usize * nx + ix as usize;
-            acc[k] = acc[k].saturating_add(1);
-            turns[k] += (fine - b * per_bin) as u32;
+            let cell = &mut acc.cells[k];
+            cell[0] = cell[0].saturating_add(1);
+            cell[1] = cell[1].saturating_add((fine - b * per_bin) as u16);
+            let v = cell[0];
+            if v == 1 {
+                acc.touched.push(k as u32);
+            }
+            if v == floor {
+                acc.tall.push(k as u32);
+            }
         }
     }
-    // Candidate cells: the raw count is at least a twentieth of the model's points.
-    let floor = (model.vote.len() / 20).max(3) as u16;
+    let cells = &acc.cells;
     let box_sum = |b: usize, y: usize, x: usize| -> u32 {
         let mut s = 0u32;
         for db in [ANGLE_BINS - 1, 0, 1] {
             let bb = (b + db) % ANGLE_BINS;
             for yy in y.saturating_sub(1)..=(y + 1).min(ny - 1) {
                 for xx in x.saturating_sub(1)..=(x + 1).min(nx - 1) {
-                    s += acc[bb * plane + yy * nx + xx] as u32;
+                    s += cells[bb * plane + yy * nx + xx][0] as u32;
                 }
             }
         }
         s
     };
-    let mut cands: Vec<(u32, usize, usize, usize)> = Vec::new();
-    for (k, &v) in acc.iter().enumerate() {
-        if v >= floor {
-            let b = k / plane;
-            let y = (k % plane) / nx;
-            let x = k % nx;
-            cands.push((box_sum(b, y, x), b, y, x));
-        }
-    }
+    // In cell order, so that equal sums rank as a scan of the whole accumulator would.
+    acc.tall.sort_unstable();
+    let mut cands: Vec<(u32, usize, usize, usize)> = acc
+        .tall
+        .iter()
+        .map(|&k| {
+            let k = k as usize;
+            let (b, y, x) = (k / plane, (k % plane) / nx, k % nx);
+            (box_sum(b, y, x), b, y, x)
+        })
+        .collect();
     cands.sort_by_key(|c| std::cmp::Reverse(c.0));
     let mut peaks: Vec<(u32, usize, usize, usize)> = Vec::new();
     for c in cands {
@@ -432,7 +485,7 @@ fn vote(model: &ShapeModel, centroid: Pt, scene: &[(Pt, usize, i32)], lo: Pt, hi
             }
         }
     }
-    peaks
+    let poses = peaks
         .into_iter()
         .map(|(v, b, y, x)| {
             // The mean of the votes around the peak, for a start within a few pixels and about a
@@ -443,10 +496,10 @@ fn vote(model: &ShapeModel, centroid: Pt, scene: &[(Pt, usize, i32)], lo: Pt, hi
                 for yy in y.saturating_sub(1)..=(y + 1).min(ny - 1) {
                     for xx in x.saturating_sub(1)..=(x + 1).min(nx - 1) {
                         let k = bb * plane + yy * nx + xx;
-                        let w = acc[k] as f64;
+                        let w = cells[k][0] as f64;
                         sx += w * (xx as f64 + 0.5);
                         sy += w * (yy as f64 + 0.5);
-                        sa += w * ((b as isize + db) * per_bin as isize) as f64 + turns[k] as f64;
+                        sa += w * ((b as isize + db) * per_bin as isize) as f64 + cells[k][1] as f64;
                         sw += w;
                     }
                 }
@@ -455,7 +508,13 @@ fn vote(model: &ShapeModel, centroid: Pt, scene: &[(Pt, usize, i32)], lo: Pt, hi
             let to = Pt::new(lo.x + cx * CELL, lo.y + cy * CELL);
             (Similarity { from: centroid, to, angle_rad: a * fine_step, scale: 1.0 }, v)
         })
-        .collect()
+        .collect();
+    for &k in &acc.touched {
+        acc.cells[k as usize] = [0; 2];
+    }
+    acc.touched.clear();
+    acc.tall.clear();
+    poses
 }
 
 /// Edge evidence across a line, from the blurred decimated frame: the gray-level step across the
@@ -509,6 +568,23 @@ impl<'a> EdgeTest<'a> {
         let top = g(i) * (1.0 - fx) + g(i + 1) * fx;
         let bot = g(i + w) * (1.0 - fx) + g(i + w + 1) * fx;
         Some(top * (1.0 - fy) + bot * fy)
+    }
+
+    /// Whether [`EdgeTest::across`] reaches the threshold, looking from the middle outwards and
+    /// stopping at the first offset that does.
+    fn shows(&self, p: Pt, n: Pt) -> bool {
+        let f = self.factor as f64;
+        let t = Pt::new(-n.y, n.x);
+        [0, -1, 1, -2, 2, -3, 3].into_iter().any(|k| {
+            let c = p + n.scale(k as f64 * 0.5 * f);
+            let (Some(a), Some(b), Some(l), Some(r)) =
+                (self.sample(c - n.scale(f)), self.sample(c + n.scale(f)), self.sample(c - t.scale(f)), self.sample(c + t.scale(f)))
+            else {
+                return false;
+            };
+            let across = (a - b).abs();
+            across >= 2.0 * (l - r).abs() && across >= self.threshold
+        })
     }
 
     /// The gray-level step across the normal `n` near `p` (frame pixels), inside minus outside:
@@ -568,7 +644,7 @@ pub fn interior_edges(coarse: &Coarse, outline: &[Pt], noise: f64, contrast: f64
         return Vec::new();
     }
     let test = EdgeTest::new(coarse, noise, contrast);
-    let index = OutlineIndex::new(outline);
+    let index = OutlineIndex::of_frame(outline);
     let poly = resample_closed(outline, 4.0);
     let f = coarse.factor as f64;
     let least = (contrast / 3.0).max(test.threshold);
@@ -602,45 +678,66 @@ pub fn interior_edges(coarse: &Coarse, outline: &[Pt], noise: f64, contrast: f64
 struct Probe {
     /// Frame position.
     at: Pt,
+    /// The outline's outward unit normal there.
+    normal: Pt,
     /// Explained: on the region's outline, or a clear edge across the outline there.
     seen: bool,
     /// Gray-level step across the outline there, inside minus outside (see
-    /// [`EdgeTest::across`]).
+    /// [`EdgeTest::across`]); measured where the region's outline does not explain the point,
+    /// otherwise NaN until [`Probe::across`] measures it (only where another part lies).
     across: f64,
 }
 
-/// The template's outline at `pose`, point by point (every `stride`-th): explained by the
-/// region's outline, or by an edge in the image. Returns the explained fraction and the points.
-/// `moved` also admits the region's outline moved along the normal (the final verification; the
-/// cheap gates before it leave that margin to their lower thresholds).
-#[allow(clippy::too_many_arguments)]
-fn verify(
-    model: &ShapeModel,
-    pose: &Similarity,
-    ext: &OutlineIndex,
-    edge: &EdgeTest<'_>,
-    tol: f64,
-    stride: usize,
-    moved: bool,
-) -> (f64, Vec<Probe>) {
-    let mut pts = Vec::with_capacity(model.verify.len() / stride + 1);
+impl Probe {
+    /// The step across the outline here, measured once.
+    fn across(&mut self, edge: &EdgeTest<'_>) -> f64 {
+        if self.across.is_nan() {
+            self.across = edge.across(self.at, self.normal);
+        }
+        self.across
+    }
+}
+
+/// The fraction of the template's outline at `pose` (every `stride`-th point) that the region's
+/// outline (within `tol`) or an edge in the image explains: the cheap look that most hypotheses
+/// end at, before any registration.
+fn support(model: &ShapeModel, pose: &Similarity, ext: &OutlineIndex, edge: &EdgeTest<'_>, tol: f64, stride: usize) -> f64 {
     let to_frame = pose.forward();
     let turn = Affine::rotation(pose.angle_rad);
-    for &(m, n) in model.verify.iter().step_by(stride) {
+    let (mut n, mut seen) = (0usize, 0usize);
+    for &(m, nm) in model.verify.iter().step_by(stride) {
+        let at = to_frame.apply(m);
+        n += 1;
+        if ext.nearest(at, tol * pose.scale).is_some() || edge.shows(at, turn.apply(nm)) {
+            seen += 1;
+        }
+    }
+    seen as f64 / n.max(1) as f64
+}
+
+/// The template's outline at `pose`, point by point: explained by the region's outline, or by an
+/// edge in the image. Returns the explained fraction and the points.
+fn verify(model: &ShapeModel, pose: &Similarity, ext: &OutlineIndex, edge: &EdgeTest<'_>, tol: f64) -> (f64, Vec<Probe>) {
+    let mut pts = Vec::with_capacity(model.verify.len());
+    let to_frame = pose.forward();
+    let turn = Affine::rotation(pose.angle_rad);
+    for &(m, n) in &model.verify {
         let at = to_frame.apply(m);
         let nn = turn.apply(n);
         // Within the tolerance anywhere, or within twice it where the region's outline runs
         // parallel to the template's, offset straight along the normal: a rounded part's
         // silhouette moves with the light, and a cast part's arm is a few pixels thinner or
         // bent by the part's tolerance and the lens, while the outline of whatever else lies
-        // there (a part across it, debris) runs its own way.
-        let on_region = ext.nearest(at, tol * pose.scale).is_some()
-            || moved
-                && ext
-                    .nearest(at, 2.0 * tol * pose.scale)
-                    .is_some_and(|(i, d, q)| ext.normal(i).dot(nn) >= PARALLEL_COS && (q - at).dot(nn).abs() >= PARALLEL_COS * d);
-        let across = edge.across(at, nn);
-        pts.push(Probe { at, seen: on_region || across.abs() >= edge.threshold, across });
+        // there (a part across it, debris) runs its own way. (The nearest within twice the
+        // tolerance is the nearest within the tolerance whenever that one exists.)
+        let on_region = ext.nearest(at, 2.0 * tol * pose.scale).is_some_and(|(i, d, q)| {
+            d <= tol * pose.scale || ext.normal(i).dot(nn) >= PARALLEL_COS && (q - at).dot(nn).abs() >= PARALLEL_COS * d
+        });
+        let mut probe = Probe { at, normal: nn, seen: on_region, across: f64::NAN };
+        if !on_region {
+            probe.seen = probe.across(edge).abs() >= edge.threshold;
+        }
+        pts.push(probe);
     }
     (pts.iter().filter(|p| p.seen).count() as f64 / pts.len().max(1) as f64, pts)
 }

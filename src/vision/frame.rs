@@ -124,8 +124,9 @@ impl<'a> GrayView<'a> {
         let ym = (self.height - 1) as f64;
         let x = x.clamp(0.0, xm);
         let y = y.clamp(0.0, ym);
-        let x0 = x.floor() as usize;
-        let y0 = y.floor() as usize;
+        // Clamped to be non-negative: truncation is the floor (and needs no libm call).
+        let x0 = x as usize;
+        let y0 = y as usize;
         let x1 = (x0 + 1).min(self.width - 1);
         let y1 = (y0 + 1).min(self.height - 1);
         let fx = x - x0 as f64;

@@ -271,6 +271,8 @@ pub struct Timings {
     pub confidence: f64,
     /// Regions of several parts: voting, verification, overlap order.
     pub clump: f64,
+    /// Of `clump`: the vote for part poses.
+    pub vote: f64,
     /// The whole estimate.
     pub total: f64,
 }
@@ -409,6 +411,21 @@ pub struct Estimator {
     max_template_area: f64,
 }
 
+/// How far below the least fit ([`Params::min_fit`]) the closest template's registration may
+/// start before it is given up (see [`register::register_unless`]): outlines of one part come
+/// well within it even before the registration has converged.
+const GIVE_UP_MARGIN: f64 = 0.15;
+
+/// What the single-part look at a region leaves for the region search.
+struct Looked {
+    /// Part-to-belt contrast along the region's outline, gray levels.
+    contrast: f64,
+    /// The frame's pixel noise, gray levels.
+    noise: f64,
+    /// The region's line segments down to [`Estimator::least_segment`], when they were found.
+    segments: Option<Vec<Segment>>,
+}
+
 struct Candidate {
     entry: usize,
     reg: register::Registration,
@@ -442,6 +459,11 @@ impl Estimator {
         Ok(Self { lib: Library::new(templates, params.signal_bins), params, min_area, min_debris_area, max_template_area: largest })
     }
 
+    /// The shortest segment any template's part keeps (5 % of the smallest one's diagonal).
+    fn least_segment(&self) -> f64 {
+        self.params.min_segment_fraction * self.lib.entries.iter().map(|e| e.diag).fold(f64::INFINITY, f64::min)
+    }
+
     /// The parameters in force.
     pub fn params(&self) -> &Params {
         &self.params
@@ -464,12 +486,12 @@ impl Estimator {
         let mut parts = Vec::with_capacity(coarse.blobs.len());
         let mut debris = coarse.debris;
         for blob in &coarse.blobs {
-            let (est, contrast) = self.estimate_part(frame, &coarse, blob, noise, &mut tm)?;
+            let (est, looked) = self.estimate_part(frame, &coarse, blob, noise, &mut tm)?;
             // A region one template cannot explain may hold several parts, or one part whose
             // silhouette came out wrong: look for each part in it by its own evidence.
             if matches!(est.reason, Reason::Touching | Reason::UnknownType | Reason::AtBorder) {
                 let t = Instant::now();
-                let found = self.estimate_region(frame, &coarse, blob, &est, noise, contrast)?;
+                let found = self.estimate_region(frame, &coarse, blob, &est, looked, &mut tm)?;
                 tm.clump += ms(t);
                 if let Some((found, small)) = found {
                     parts.extend(found);
@@ -513,21 +535,24 @@ impl Estimator {
         coarse: &detect::Coarse,
         blob: &detect::Blob,
         whole: &PartEstimate,
-        noise: f64,
-        contrast: f64,
+        looked: Looked,
+        tm: &mut Timings,
     ) -> Result<Option<(Vec<PartEstimate>, usize)>, FrameError> {
         let p = &self.params;
+        let (contrast, noise) = (looked.contrast, looked.noise);
         let region = clump::Region { coarse, blob, outline: &whole.outline, noise, contrast };
         let tolerance = |ei: usize| p.fit_tolerance + p.fit_tolerance_rel * self.lib.entries[ei].template.rms_radius() + noise / 15.0;
         let ex = clump::explain(&self.lib, &region, tolerance, self.min_debris_area);
+        tm.vote += ex.vote_ms;
         if ex.parts.is_empty() {
             return Ok(None);
         }
         // The region's segments down to the smallest part's minimum length; each part keeps
         // those its own size allows (5 % of its diagonal), as a separate part would.
-        let smallest = self.lib.entries.iter().map(|e| e.diag).fold(f64::INFINITY, f64::min);
-        let all_segments =
-            lines::part_segments(p.line_detector, &coarse.small, &coarse.edges, coarse.factor, blob, p.min_segment_fraction * smallest)?;
+        let all_segments = match looked.segments {
+            Some(s) => s,
+            None => lines::part_segments(p.line_detector, &coarse.small, &coarse.edges, coarse.factor, blob, self.least_segment())?,
+        };
         let noise_level = if contrast > 0.0 { (noise / contrast).clamp(0.0, 1.0) } else { 1.0 };
         let lambda = p.lambda0 * (1.0 - p.alpha * noise_level);
         let mut out = Vec::with_capacity(ex.parts.len() + ex.leftover.len());
@@ -632,7 +657,7 @@ impl Estimator {
         blob: &detect::Blob,
         noise: f64,
         tm: &mut Timings,
-    ) -> Result<(PartEstimate, f64), FrameError> {
+    ) -> Result<(PartEstimate, Looked), FrameError> {
         let p = &self.params;
         let (_, c0) = area_centroid(&blob.outline);
         let mut est = PartEstimate::unnamed(c0, blob.outline.clone(), Verdict::NoFit { need: p.min_fit, merged: false });
@@ -651,18 +676,28 @@ impl Estimator {
         let (lo, hi) = bounds(&outline);
         if reaches_border(lo, hi, frame) {
             est.conclude(Verdict::AtBorder { lo, hi }, Evidence::default());
-            return Ok((est, contrast));
+            return Ok((est, Looked { contrast, noise, segments: None }));
         }
         let max_scale2 = p.scale_range.1 * p.scale_range.1;
         if area > p.touching_area_ratio * self.max_template_area * max_scale2 {
             est.conclude(Verdict::TooLarge { area }, Evidence::default());
-            return Ok((est, contrast));
+            return Ok((est, Looked { contrast, noise, segments: None }));
         }
 
         let t = Instant::now();
         let diag = (hi - lo).norm();
-        let segments =
-            lines::part_segments(p.line_detector, &coarse.small, &coarse.edges, coarse.factor, blob, p.min_segment_fraction * diag)?;
+        // Down to the smallest template's minimum length at once: should the region hold
+        // several parts, each keeps those its own size allows, and the detector runs once.
+        let all = lines::part_segments(
+            p.line_detector,
+            &coarse.small,
+            &coarse.edges,
+            coarse.factor,
+            blob,
+            self.least_segment().min(p.min_segment_fraction * diag),
+        )?;
+        let segments: Vec<Segment> = all.iter().filter(|s| s.len() >= p.min_segment_fraction * diag).copied().collect();
+        let looked = Looked { contrast, noise, segments: Some(all) };
         let axis = lines::orientation_axis(&segments);
         let theta = axis.map(|s| s.direction()).unwrap_or(0.0);
         est.descriptor = lines::descriptor(&segments, centroid, theta);
@@ -701,11 +736,11 @@ impl Estimator {
             // Several parts merged into one region are larger than the template they resemble.
             let nominal = self.lib.entries[aligned[0].0].template.area;
             est.conclude(Verdict::NoFit { need: p.min_fit, merged: area > p.touching_area_ratio * nominal }, evidence);
-            return Ok((est, contrast));
+            return Ok((est, looked));
         }
         if pose.scale < p.scale_range.0 || pose.scale > p.scale_range.1 {
             est.conclude(Verdict::Scale { scale: pose.scale, range: p.scale_range }, evidence);
-            return Ok((est, contrast));
+            return Ok((est, looked));
         }
         // From here on the part has a type, face and pose, accepted or not.
         est.type_name = Some(tpl.type_name.clone());
@@ -716,7 +751,7 @@ impl Estimator {
         est.y = origin.y;
         if best.reg.extra > p.max_foreign || best.reg.missing > p.max_foreign {
             est.conclude(Verdict::Foreign { extra: best.reg.extra, missing: best.reg.missing, limit: p.max_foreign }, evidence);
-            return Ok((est, contrast));
+            return Ok((est, looked));
         }
 
         let t = Instant::now();
@@ -735,7 +770,7 @@ impl Estimator {
             evidence.rival = Some(rival.clone());
             if est.confidence - rival.confidence < p.confidence_margin {
                 est.conclude(Verdict::Rival { rival }, evidence);
-                return Ok((est, contrast));
+                return Ok((est, looked));
             }
         }
         let verdict = if est.confidence < p.accept_threshold {
@@ -746,7 +781,7 @@ impl Estimator {
             Verdict::Accept
         };
         est.conclude(verdict, evidence);
-        Ok((est, contrast))
+        Ok((est, looked))
     }
 
     /// Stages 4 and 4b: every template by correlation distance (best first), and the closest
@@ -788,8 +823,15 @@ impl Estimator {
                 };
                 // Outlines of rounded parts shift with the light by a few pixels; noise adds jitter.
                 let tolerance = p.fit_tolerance + p.fit_tolerance_rel * e.template.rms_radius() + noise / 15.0;
-                let stride = if rank == 0 { 1 } else { 4 };
-                Candidate { entry: i, reg: register::register(outline, &e.index, init, tolerance, stride), corr_rms: al.rms, tolerance }
+                // The closest is given up early when most of the outline is not near it at all
+                // (several parts in one region: the region search takes over), well below the
+                // fit that could name a type.
+                let reg = if rank == 0 {
+                    register::register_unless(outline, &e.index, init, tolerance, p.min_fit - GIVE_UP_MARGIN).unwrap_or_else(|r| r)
+                } else {
+                    register::register(outline, &e.index, init, tolerance, 4)
+                };
+                Candidate { entry: i, reg, corr_rms: al.rms, tolerance }
             })
             .collect();
         // Should a runner-up beat the first, register it fully too: its pose is the one reported.

@@ -20,7 +20,9 @@ const NEAR_REACH: f64 = 8.0;
 /// farther holds half the segments of the coarse one.
 const MID_REACH: f64 = 12.0;
 
-/// Segments near each cell of a uniform grid.
+/// Segments near each cell of a uniform grid, stored compactly (one list for all cells, an offset
+/// per cell): a region's outline is indexed once per frame, and a list per cell made that cost
+/// more allocations than the queries it served.
 #[derive(Debug, Clone)]
 struct Grid {
     reach: f64,
@@ -28,59 +30,131 @@ struct Grid {
     origin: Pt,
     cols: usize,
     rows: usize,
-    cells: Vec<Vec<u32>>,
+    /// Cell `k`'s segments are `items[starts[k]..starts[k + 1]]`.
+    starts: Vec<u32>,
+    items: Vec<u32>,
 }
 
 impl Grid {
-    fn new(outline: &[Pt], reach: f64, cell: f64) -> Self {
+    /// Every segment within `reach` of a cell, in cells of `cell` pixels. `prune` keeps in each
+    /// cell only the segments that can be the nearest for some point of it (within the reach),
+    /// which makes queries several times cheaper and the build several times dearer: right for
+    /// a template, indexed once and queried for every frame.
+    fn new(outline: &[Pt], reach: f64, cell: f64, prune: bool) -> Self {
         let n = outline.len();
         let (lo, hi) = super::geometry::bounds(outline);
         let origin = Pt::new(lo.x - reach - cell, lo.y - reach - cell);
         let cols = (((hi.x - origin.x) + reach + cell) / cell).ceil() as usize + 1;
         let rows = (((hi.y - origin.y) + reach + cell) / cell).ceil() as usize + 1;
-        let mut cells = vec![Vec::new(); cols * rows];
-        for i in 0..n {
+        // The cells each segment's box (grown by the reach) covers.
+        let span = |i: usize| {
             let a = outline[i];
             let b = outline[(i + 1) % n];
             let x0 = ((a.x.min(b.x) - reach - origin.x) / cell).floor().max(0.0) as usize;
             let x1 = (((a.x.max(b.x) + reach - origin.x) / cell).floor() as usize).min(cols - 1);
             let y0 = ((a.y.min(b.y) - reach - origin.y) / cell).floor().max(0.0) as usize;
             let y1 = (((a.y.max(b.y) + reach - origin.y) / cell).floor() as usize).min(rows - 1);
+            (x0, x1, y0, y1)
+        };
+        // Counting sort: sizes, offsets, then the items in segment order within each cell.
+        let mut starts = vec![0u32; cols * rows + 1];
+        for i in 0..n {
+            let (x0, x1, y0, y1) = span(i);
             for y in y0..=y1 {
-                for x in x0..=x1 {
-                    cells[y * cols + x].push(i as u32);
+                for c in &mut starts[y * cols + x0 + 1..=y * cols + x1 + 1] {
+                    *c += 1;
                 }
             }
         }
-        Self { reach, cell, origin, cols, rows, cells }
+        for k in 1..starts.len() {
+            starts[k] += starts[k - 1];
+        }
+        let mut next = starts.clone();
+        let mut items = vec![0u32; starts[cols * rows] as usize];
+        for i in 0..n {
+            let (x0, x1, y0, y1) = span(i);
+            for y in y0..=y1 {
+                for k in y * cols + x0..=y * cols + x1 {
+                    items[next[k] as usize] = i as u32;
+                    next[k] += 1;
+                }
+            }
+        }
+        if prune {
+            // For a point p of a cell with centre c and half-diagonal h, and any segment s,
+            // d(c, s) - h <= d(p, s) <= d(c, s) + h: the nearest segment to p lies within
+            // min_s d(c, s) + 2h of c. Segments farther than that from c, or farther than the
+            // reach plus h, can never be the answer from this cell.
+            let h = cell * std::f64::consts::SQRT_2 / 2.0;
+            let mut kept = 0usize;
+            let mut dist: Vec<f64> = Vec::new();
+            for k in 0..cols * rows {
+                let c = Pt::new(origin.x + ((k % cols) as f64 + 0.5) * cell, origin.y + ((k / cols) as f64 + 0.5) * cell);
+                let (from, to) = (starts[k] as usize, starts[k + 1] as usize);
+                dist.clear();
+                dist.extend(items[from..to].iter().map(|&i| point_segment(c, outline[i as usize], outline[(i as usize + 1) % n]).0));
+                let least = dist.iter().copied().fold(f64::INFINITY, f64::min);
+                let bound = (least + 2.0 * h).min(reach + h);
+                starts[k] = kept as u32;
+                for (j, d) in (from..to).zip(&dist) {
+                    if *d <= bound {
+                        items[kept] = items[j];
+                        kept += 1;
+                    }
+                }
+            }
+            starts[cols * rows] = kept as u32;
+            items.truncate(kept);
+            items.shrink_to_fit();
+        }
+        Self { reach, cell, origin, cols, rows, starts, items }
     }
 
     fn candidates(&self, q: Pt) -> &[u32] {
-        let cx = ((q.x - self.origin.x) / self.cell).floor();
-        let cy = ((q.y - self.origin.y) / self.cell).floor();
-        if cx < 0.0 || cy < 0.0 || cx as usize >= self.cols || cy as usize >= self.rows {
+        let cx = (q.x - self.origin.x) / self.cell;
+        let cy = (q.y - self.origin.y) / self.cell;
+        // Truncation is the floor once negatives are out (and needs no libm call: this is the
+        // innermost query of the registration and the verification). NaN fails the tests too.
+        if !(cx >= 0.0 && cy >= 0.0) || cx as usize >= self.cols || cy as usize >= self.rows {
             return &[];
         }
-        &self.cells[cy as usize * self.cols + cx as usize]
+        let k = cy as usize * self.cols + cx as usize;
+        &self.items[self.starts[k] as usize..self.starts[k + 1] as usize]
     }
 }
 
-/// A template outline with spatial indexes for nearest-segment queries: a coarse one reaching
-/// far for the first iterations, a fine one for the rest.
+/// An outline with spatial indexes for nearest-segment queries.
 #[derive(Debug, Clone)]
 pub struct OutlineIndex {
     pts: Vec<Pt>,
     /// Outward unit normal of segment i (pts[i] -> pts[i+1]).
     normals: Vec<Pt>,
     lens: Vec<f64>,
-    far: Grid,
-    mid: Grid,
-    near: Grid,
+    /// By increasing reach; a query uses the first that reaches as far.
+    grids: Vec<Grid>,
 }
 
 impl OutlineIndex {
-    /// An index of this closed outline (template pixels).
+    /// An index of a template's closed outline (template pixels), built once and queried for
+    /// every part of every frame: one grid pruned to the segments that can be nearest.
     pub fn new(outline: &[Pt]) -> Self {
+        Self::with_grids(outline, vec![Grid::new(outline, MAX_REACH, 4.0, true)])
+    }
+
+    /// An index of an outline found in a frame, queried a few thousand times: cheap to build
+    /// (unpruned grids, a coarse one reaching far and finer ones for short reaches).
+    pub fn of_frame(outline: &[Pt]) -> Self {
+        Self::with_grids(
+            outline,
+            vec![
+                Grid::new(outline, NEAR_REACH, 4.0, false),
+                Grid::new(outline, MID_REACH, 4.0, false),
+                Grid::new(outline, MAX_REACH, 8.0, false),
+            ],
+        )
+    }
+
+    fn with_grids(outline: &[Pt], grids: Vec<Grid>) -> Self {
         let n = outline.len();
         let (area, _) = super::geometry::area_centroid(outline);
         let sign = if area > 0.0 { 1.0 } else { -1.0 };
@@ -92,14 +166,7 @@ impl OutlineIndex {
             normals.push(Pt::new(e.y / l * sign, -e.x / l * sign));
             lens.push(l);
         }
-        Self {
-            pts: outline.to_vec(),
-            normals,
-            lens,
-            far: Grid::new(outline, MAX_REACH, 8.0),
-            mid: Grid::new(outline, MID_REACH, 4.0),
-            near: Grid::new(outline, NEAR_REACH, 4.0),
-        }
+        Self { pts: outline.to_vec(), normals, lens, grids }
     }
 
     /// The outline indexed.
@@ -114,15 +181,10 @@ impl OutlineIndex {
 
     /// Nearest segment to `q` within `reach` (at most [`MAX_REACH`]): (segment, distance, foot).
     pub fn nearest(&self, q: Pt, reach: f64) -> Option<(usize, f64, Pt)> {
-        // The smallest grid that reaches as far: each holds every segment within its reach of
-        // a cell, so the answer is the same from any of them, only found sooner.
-        let grid = if reach <= self.near.reach {
-            &self.near
-        } else if reach <= self.mid.reach {
-            &self.mid
-        } else {
-            &self.far
-        };
+        // The first grid that reaches as far: each holds every segment that can be the nearest
+        // within its reach of a cell, so the answer is the same from any of them, only found
+        // sooner.
+        let grid = self.grids.iter().find(|g| reach <= g.reach).or(self.grids.last())?;
         let n = self.pts.len();
         let mut best: Option<(usize, f64, Pt)> = None;
         for &i in grid.candidates(q) {
@@ -177,6 +239,33 @@ impl Registration {
 /// `stride` > 1 uses every stride-th point only (a cheaper, slightly noisier answer, enough to
 /// tell a rival template from the right one).
 pub fn register(part: &[Pt], tmpl: &OutlineIndex, init: Similarity, tolerance: f64, stride: usize) -> Registration {
+    let (pose, _) = icp(part, tmpl, init, stride, 0.0);
+    measure(part, tmpl, pose, tolerance, stride)
+}
+
+/// [`register`], giving up once the pose is within [`GIVE_UP_REACH`] of its answer if fewer
+/// than `least` of the part's points lie that close to the template: an outline that is mostly
+/// something else (a region of several parts) will not fit, and the rest of the iterations on
+/// every point would only measure how badly. Err holds the pose so far, measured on every
+/// fourth point.
+pub fn register_unless(
+    part: &[Pt],
+    tmpl: &OutlineIndex,
+    init: Similarity,
+    tolerance: f64,
+    least: f64,
+) -> Result<Registration, Registration> {
+    match icp(part, tmpl, init, 1, least) {
+        (pose, false) => Ok(measure(part, tmpl, pose, tolerance, 1)),
+        (pose, true) => Err(measure(part, tmpl, pose, tolerance, 4)),
+    }
+}
+
+/// The correspondence reach at which [`register_unless`] judges: the third iteration's.
+const GIVE_UP_REACH: f64 = 8.0;
+
+/// Point-to-line ICP from `init`: the pose, and whether it gave up (see [`register_unless`]).
+fn icp(part: &[Pt], tmpl: &OutlineIndex, init: Similarity, stride: usize, least: f64) -> (Similarity, bool) {
     // Parameterise the frame -> template map as q = c_t + tau + M (p - c_p), M = [[a, -b], [b, a]].
     let cp = init.to;
     let ct = init.from;
@@ -188,6 +277,12 @@ pub fn register(part: &[Pt], tmpl: &OutlineIndex, init: Similarity, tolerance: f
         Pt::new(ct.x + tx + a * d.x - b * d.y, ct.y + ty + b * d.x + a * d.y)
     };
     let stride = stride.max(1);
+    let pose_of = |a: f64, b: f64, tx: f64, ty: f64| Similarity {
+        from: Pt::new(ct.x + tx, ct.y + ty),
+        to: cp,
+        angle_rad: b.atan2(a),
+        scale: 1.0 / a.hypot(b),
+    };
     // Tukey cut-off shrinks from the correspondence reach to a few pixels; early iterations use a
     // quarter of the points, which is plenty while the pose is still moving by pixels.
     let schedule: [(f64, usize); 8] = [(MAX_REACH, 4), (12.0, 4), (8.0, 4), (6.0, 2), (5.0, 1), (4.0, 1), (4.0, 1), (4.0, 1)];
@@ -195,8 +290,9 @@ pub fn register(part: &[Pt], tmpl: &OutlineIndex, init: Similarity, tolerance: f
         let step = stride.max(sub);
         let mut h = Matrix4::<f64>::zeros();
         let mut g = Vector4::<f64>::zeros();
-        let mut used = 0usize;
+        let (mut used, mut looked) = (0usize, 0usize);
         for &p in part.iter().step_by(step) {
+            looked += 1;
             let q = map(a, b, tx, ty, p);
             let Some((i, dist, foot)) = tmpl.nearest(q, c) else {
                 continue;
@@ -219,6 +315,9 @@ pub fn register(part: &[Pt], tmpl: &OutlineIndex, init: Similarity, tolerance: f
         if used < 8 {
             break;
         }
+        if c == GIVE_UP_REACH && (used as f64) < least * looked as f64 {
+            return (pose_of(a, b, tx, ty), true);
+        }
         // Levenberg damping keeps a degenerate first step (a circle's rotation) finite.
         let damp = Matrix4::from_diagonal(&Vector4::new(1e-9, 1e-9, 1e-9, 1e-9)) * h.trace().max(1.0);
         let Some(delta) = (h + damp).lu().solve(&(-g)) else {
@@ -234,8 +333,7 @@ pub fn register(part: &[Pt], tmpl: &OutlineIndex, init: Similarity, tolerance: f
             break;
         }
     }
-    let pose = Similarity { from: Pt::new(ct.x + tx, ct.y + ty), to: cp, angle_rad: b.atan2(a), scale: 1.0 / a.hypot(b) };
-    measure(part, tmpl, pose, tolerance, stride)
+    (pose_of(a, b, tx, ty), false)
 }
 
 /// How well `tmpl` placed by `pose` explains `part`, at a given tolerance (template pixels).
@@ -333,7 +431,13 @@ mod tests {
     #[test]
     fn the_nearest_segment_is_the_same_whichever_grid_answers() {
         let t = blob();
-        let idx = OutlineIndex::new(&t);
+        for idx in [OutlineIndex::new(&t), OutlineIndex::of_frame(&t)] {
+            nearest_is_brute_force(&t, &idx);
+        }
+    }
+
+    /// Pruned (a template's) or not (a frame's): the grids must answer as brute force does.
+    fn nearest_is_brute_force(t: &[Pt], idx: &OutlineIndex) {
         let n = t.len();
         let mut seed = 12345u64;
         let mut next = || {
