@@ -57,7 +57,7 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     // Raw profiles: the frame sampled bilinearly along each normal (edges replicated).
     let mut raw = Vec::with_capacity(n * k);
     for (b, nn) in smooth.iter().zip(&normals) {
-        raw.extend(ts.iter().map(|t| frame.bilinear(b.x + nn.x * t, b.y + nn.y * t)));
+        profile(frame, *b, *nn, &ts, &mut raw);
     }
     // Gaussian kernel along the profile.
     let sig = (p.profile_sigma / STEP).max(0.5);
@@ -85,12 +85,17 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
         padded[..r].fill(acc[0]);
         padded[r..r + k].copy_from_slice(&acc);
         padded[r + k..].fill(acc[k - 1]);
-        for (j, out) in sm[i * k..(i + 1) * k].iter_mut().enumerate() {
-            let mut s = 0.0;
-            for (w, v) in kernel.iter().zip(&padded[j..j + kernel.len()]) {
-                s += w * v;
+        // Tap by tap over the whole profile: each output still sums its taps in order, but the
+        // outputs are independent, so the additions run side by side instead of one after another.
+        let row = &mut sm[i * k..(i + 1) * k];
+        row.fill(0.0);
+        for (q, w) in kernel.iter().enumerate() {
+            for (out, v) in row.iter_mut().zip(&padded[q..q + k]) {
+                *out += w * v;
             }
-            *out = s * norm;
+        }
+        for out in row.iter_mut() {
+            *out *= norm;
         }
         // Slide the window: drop profile i - m, add profile i + m + 1.
         let out = (i + n - m) % n;
@@ -148,6 +153,31 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
         return Refined { outline: smooth, contrast };
     }
     Refined { outline, contrast }
+}
+
+/// Appends the frame's bilinear samples at `b + n t` for every t: as [`GrayView::bilinear`]
+/// gives them, without its clamping where the whole profile lies inside the frame (nearly every
+/// profile; this is the refinement's innermost loop).
+fn profile(frame: GrayView<'_>, b: Pt, n: Pt, ts: &[f64], out: &mut Vec<f64>) {
+    let (w, h) = (frame.width(), frame.height());
+    let (Some(&t0), Some(&t1)) = (ts.first(), ts.last()) else { return };
+    let (xa, xb, ya, yb) = (b.x + n.x * t0, b.x + n.x * t1, b.y + n.y * t0, b.y + n.y * t1);
+    let inside = |lo: f64, hi: f64, size: usize| lo.min(hi) >= 0.0 && lo.max(hi) <= size as f64 - 2.0;
+    if !(inside(xa, xb, w) && inside(ya, yb, h)) {
+        out.extend(ts.iter().map(|t| frame.bilinear(b.x + n.x * t, b.y + n.y * t)));
+        return;
+    }
+    let data = frame.data();
+    out.extend(ts.iter().map(|t| {
+        let (x, y) = (b.x + n.x * t, b.y + n.y * t);
+        let (x0, y0) = (x as usize, y as usize);
+        let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+        let i = y0 * w + x0;
+        let (p, q) = (&data[i..i + 2], &data[i + w..i + w + 2]);
+        let top = p[0] as f64 + (p[1] as f64 - p[0] as f64) * fx;
+        let bot = q[0] as f64 + (q[1] as f64 - q[0] as f64) * fx;
+        top + (bot - top) * fy
+    }));
 }
 
 fn median(v: &mut [f64]) -> f64 {
