@@ -144,6 +144,36 @@ fn decimate(frame: GrayView<'_>, f: usize, out: &mut [u8]) {
     }
 }
 
+/// Otsu's level of an 8-bit image: the gray level that best splits its histogram into two
+/// classes (the largest between-class variance; the first of equals), as OpenCV's
+/// `THRESH_OTSU` finds it, without writing the thresholded image it has no use for here.
+fn otsu_level(pixels: &[u8]) -> f64 {
+    let mut hist = [0u32; 256];
+    for &v in pixels {
+        hist[v as usize] += 1;
+    }
+    let n = pixels.len().max(1) as f64;
+    let mu: f64 = hist.iter().enumerate().map(|(i, &c)| i as f64 * c as f64).sum::<f64>() / n;
+    let (mut q1, mut mu1, mut best, mut level) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    for (i, &c) in hist.iter().enumerate() {
+        let p = c as f64 / n;
+        let q1_before = q1;
+        q1 += p;
+        let q2 = 1.0 - q1;
+        if q1.min(q2) < f32::EPSILON as f64 || q1.max(q2) > 1.0 - f32::EPSILON as f64 {
+            continue;
+        }
+        mu1 = (mu1 * q1_before + i as f64 * p) / q1;
+        let mu2 = (mu - q1 * mu1) / q2;
+        let between = q1 * q2 * (mu1 - mu2) * (mu1 - mu2);
+        if between > best {
+            best = between;
+            level = i as f64;
+        }
+    }
+    level
+}
+
 /// Median Sobel (L1) gradient magnitude of an 8-bit image, from central differences on every
 /// fourth row and second column: the typical gradient of the belt's texture and noise, which
 /// covers most of a frame.
@@ -196,8 +226,7 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
     // weights below 2 %).
     let ks = 2 * (2.5 * p.blur_sigma).ceil() as i32 + 1;
     imgproc::gaussian_blur(&small, &mut blurred, Size::new(ks, ks), p.blur_sigma, p.blur_sigma, core::BORDER_REPLICATE)?;
-    let mut scratch = Mat::default();
-    let otsu = imgproc::threshold(&blurred, &mut scratch, 0.0, 255.0, imgproc::THRESH_BINARY | imgproc::THRESH_OTSU)?;
+    let otsu = otsu_level(blurred.data_bytes()?);
     let auto = otsu.min((6.0 * median_gradient(&blurred)?).max(24.0));
     let mut edges = Mat::default();
     imgproc::canny(&blurred, &mut edges, p.canny_low_ratio * auto, auto, 3, false)?;
@@ -277,6 +306,27 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
 mod tests {
     use super::*;
     use crate::vision::frame::GrayImage;
+
+    /// The level is OpenCV's: on a two-class image with noise, on a flat one, and on a ramp.
+    #[test]
+    fn otsu_level_is_opencv_s() {
+        let mut seed = 7u64;
+        let mut next = || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (seed >> 33) as u32
+        };
+        let images: Vec<Vec<u8>> = vec![
+            (0..40_000).map(|i| if i % 3 == 0 { 180 + (next() % 40) as u8 } else { 40 + (next() % 50) as u8 }).collect(),
+            vec![77; 1000],
+            (0..=255).cycle().take(5000).map(|v| v as u8).collect(),
+        ];
+        for img in images {
+            let m = Mat::new_rows_cols_with_data(1, img.len() as i32, &img).unwrap();
+            let mut out = Mat::default();
+            let cv = imgproc::threshold(&m, &mut out, 0.0, 255.0, imgproc::THRESH_BINARY | imgproc::THRESH_OTSU).unwrap();
+            assert_eq!(otsu_level(&img), cv, "first pixels {:?}", &img[..4]);
+        }
+    }
 
     /// Two plates whose corners come within the closing's reach: the closing joins them over a
     /// narrow neck and its erosion parts them again. Each is a region with its own mask;
