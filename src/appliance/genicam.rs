@@ -66,6 +66,8 @@ pub struct CameraInfo {
     pub height: i32,
     /// Exposure read back from the camera, microseconds (None: it has no exposure feature).
     pub exposure_us: Option<f64>,
+    /// The frame trigger read back from the camera: "Off" (free-running) or "On, <source>".
+    pub trigger: String,
 }
 
 /// Counters of one camera, shared with the operator view and `/metrics`.
@@ -281,16 +283,18 @@ impl GenicamSource {
             width,
             height,
             exposure_us: camera.exposure_time().ok(),
+            trigger: read_trigger(&camera),
         };
         tracing::info!(
             camera = %self.name,
-            "GenICam camera {} serial {} connected: {} {} x {}, exposure {}, {}",
+            "GenICam camera {} serial {} connected: {} {} x {}, exposure {}, trigger {} ({})",
             info.model,
             info.serial,
             info.pixel_format,
             info.width,
             info.height,
             info.exposure_us.map_or("n/a".into(), |e| format!("{e} us")),
+            info.trigger,
             match s.mode() {
                 Mode::Hardware(l) => format!("hardware trigger on {l}"),
                 Mode::FreeRun => "free-running".into(),
@@ -470,6 +474,17 @@ impl Drop for GenicamSource {
             c.stop_probe.store(true, Ordering::SeqCst);
             let _ = c.camera.stop_acquisition();
         }
+    }
+}
+
+/// The frame-start trigger as the camera reports it (what the settings made of it, whatever the
+/// camera accepted): "Off", or "On, " and the source.
+fn read_trigger(camera: &aravis::Camera) -> String {
+    // Aravis's set_trigger leaves the selector on FrameStart; clear_triggers turns every one off.
+    match (camera.string("TriggerMode"), camera.string("TriggerSource")) {
+        (Ok(m), Ok(src)) if m.as_str() == "On" => format!("On, {src}"),
+        (Ok(m), _) => m.to_string(),
+        (Err(e), _) => format!("unknown ({e})"),
     }
 }
 
