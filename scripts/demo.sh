@@ -13,5 +13,7 @@ From another terminal (Debian package mbpoll; register numbers are 1-based, addr
   mbpoll -m tcp -p 1502 -a 1 -r 201 -c 19 -1 127.0.0.1      # the result block
   mbpoll -m tcp -p 1502 -a 1 -r 1 -1 127.0.0.1 0            # TRIGGER = 0
   mbpoll -m tcp -p 1502 -a 1 -r 2 -1 127.0.0.1 <RESULT_SEQ> # RESULT_ACK: next result
+Operator view: http://127.0.0.1:8080/ ; its controls and enrolment take the token "demo-token"
+(config/demo.toml, [http] token), typed into the page's token field.
 HINT
 exec target/debug/lfi-bridge run --config config/demo.toml "$@"

@@ -16,6 +16,7 @@ command -v arv-fake-gv-camera-0.8 >/dev/null 2>&1 || need+=(aravis-tools)
 command -v arv-tool-0.8 >/dev/null 2>&1 || need+=(aravis-tools-cli)
 if [ "${LFI_WITH_BROWSER:-0}" = 1 ]; then
   command -v chromium >/dev/null 2>&1 || need+=(chromium)
+  command -v chromedriver >/dev/null 2>&1 || need+=(chromium-driver)
 fi
 
 if [ ${#need[@]} -gt 0 ]; then

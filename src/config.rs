@@ -120,6 +120,11 @@ mod raw {
         pub header_timeout_s: f64,
         #[serde(default = "default_request_timeout")]
         pub request_timeout_s: f64,
+        #[serde(default = "default_history")]
+        pub history_frames: i64,
+    }
+    fn default_history() -> i64 {
+        50
     }
     fn default_true() -> bool {
         true
@@ -146,6 +151,7 @@ mod raw {
                 max_in_flight: default_http_in_flight(),
                 header_timeout_s: default_header_timeout(),
                 request_timeout_s: default_request_timeout(),
+                history_frames: default_history(),
             }
         }
     }
@@ -560,6 +566,8 @@ pub struct HttpConfig {
     pub header_timeout: Duration,
     /// A request must be answered within this (408 otherwise).
     pub request_timeout: Duration,
+    /// Acquisitions per camera the page's history keeps in memory (0: none).
+    pub history_frames: usize,
 }
 
 /// The validated configuration.
@@ -676,6 +684,7 @@ fn http_of(c: &Check<'_>, h: &raw::Http) -> Result<Option<HttpConfig>, ConfigErr
         max_in_flight: c.int("http.max_in_flight", h.max_in_flight, 1, 256)?,
         header_timeout: Duration::from_secs_f64(c.real("http.header_timeout_s", h.header_timeout_s, 0.1, 300.0)?),
         request_timeout: Duration::from_secs_f64(c.real("http.request_timeout_s", h.request_timeout_s, 0.1, 300.0)?),
+        history_frames: c.int("http.history_frames", h.history_frames, 0, 1000)?,
     }))
 }
 

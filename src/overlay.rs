@@ -4,7 +4,7 @@ use opencv::core::{self, Mat, Point, Scalar};
 use opencv::imgproc;
 use opencv::prelude::*;
 
-use crate::vision::{Estimator, FrameEstimate, GrayView, Pt};
+use crate::vision::{Estimator, FrameEstimate, GrayView, Pt, Template};
 
 const GREEN: (f64, f64, f64) = (60.0, 220.0, 60.0);
 const RED: (f64, f64, f64) = (40.0, 40.0, 235.0);
@@ -28,9 +28,7 @@ fn line(img: &mut Mat, a: Pt, b: Pt, scale: f64, color: Scalar, thickness: i32) 
     imgproc::line(img, p(a), p(b), color, thickness, imgproc::LINE_AA, 4)
 }
 
-/// A colour picture of the frame, scaled by `scale`, with each part's outline (green accepted,
-/// red rejected), the matched template's outline in blue, line features in yellow, the
-/// orientation axis thick, and a label.
+/// A colour picture of the frame, scaled by `scale`, with every part drawn (see [`annotate`]).
 pub fn draw(frame: GrayView<'_>, est: &FrameEstimate, estimator: &Estimator, scale: f64) -> opencv::Result<Mat> {
     let src = frame.as_mat().map_err(|e| opencv::Error::new(core::StsError, e.to_string()))?;
     let mut small = Mat::default();
@@ -39,55 +37,106 @@ pub fn draw(frame: GrayView<'_>, est: &FrameEstimate, estimator: &Estimator, sca
         ((frame.height() as f64) * scale).round().max(1.0) as i32,
     );
     imgproc::resize(&src, &mut small, size, 0.0, 0.0, imgproc::INTER_AREA)?;
+    let templates: Vec<&Template> = estimator.templates().collect();
+    annotate_gray(&small, est, &templates, scale, None)
+}
+
+/// [`annotate`] on a gray picture already scaled by `scale` (a history entry's).
+pub fn annotate_gray(
+    picture: &impl core::ToInputArray,
+    est: &FrameEstimate,
+    templates: &[&Template],
+    scale: f64,
+    highlight: Option<usize>,
+) -> opencv::Result<Mat> {
     let mut img = Mat::default();
-    imgproc::cvt_color(&small, &mut img, imgproc::COLOR_GRAY2BGR, 0)?;
-    let templates: Vec<_> = estimator.templates().collect();
-    let thick = ((2.0 * scale).round() as i32).max(1);
+    imgproc::cvt_color(picture, &mut img, imgproc::COLOR_GRAY2BGR, 0)?;
+    annotate(&mut img, est, templates, scale, highlight)?;
+    Ok(img)
+}
+
+/// Draws the parts of `est` (frame pixels times `scale`) over a colour picture, numbered 1..
+/// in the estimate's order (the PLC's PART_INDEX for a frame's final results): a tint over each
+/// part (green accepted, red rejected), its line features thin, its outline last and thick, a
+/// cross at the pick point and an arrow along its angle where it has a type, and a label on a
+/// dark background. `highlight` (a part number) also draws that part's best-fit template
+/// outline, labelled, in blue.
+pub fn annotate(img: &mut Mat, est: &FrameEstimate, templates: &[&Template], scale: f64, highlight: Option<usize>) -> opencv::Result<()> {
+    let thick = ((3.0 * scale).round() as i32).clamp(2, 4);
+    // The tints first, blended once, so that everything drawn after stays crisp.
+    let mut tinted = img.try_clone()?;
     for p in &est.parts {
+        fill(&mut tinted, &p.outline, scale, bgr(if p.accepted { GREEN } else { RED }))?;
+    }
+    let mut blended = Mat::default();
+    core::add_weighted(&tinted, 0.22, &*img, 0.78, 0.0, &mut blended, -1)?;
+    *img = blended;
+    let fs = (img.cols() as f64 / 1100.0).clamp(0.4, 0.9);
+    for (i, p) in est.parts.iter().enumerate() {
+        let n = i + 1;
         let color = bgr(if p.accepted { GREEN } else { RED });
-        if let Some((i, pose)) = p.matched
-            && let Some(t) = templates.get(i)
+        for s in &p.segments {
+            line(img, s.a, s.b, scale, bgr(YELLOW), 1)?;
+        }
+        if highlight == Some(n)
+            && let Some((ti, pose)) = p.matched
+            && let Some(t) = templates.get(ti)
         {
             let to_frame = pose.forward();
             let mapped: Vec<Pt> = t.outline.iter().map(|&q| to_frame.apply(q)).collect();
-            poly(&mut img, &mapped, scale, bgr(BLUE), 1)?;
+            poly(img, &mapped, scale, bgr(BLUE), 2)?;
+            let (lo, hi) = crate::vision::geometry::bounds(&mapped);
+            label(img, &format!("best fit: {} {}", t.type_name, t.face), Pt::new(lo.x * scale, hi.y * scale + 18.0 * fs), fs, bgr(BLUE))?;
         }
-        poly(&mut img, &p.outline, scale, color, thick)?;
-        for s in &p.segments {
-            line(&mut img, s.a, s.b, scale, bgr(YELLOW), 1)?;
+        poly(img, &p.outline, scale, color, thick)?;
+        let at = Pt::new(p.x, p.y);
+        if p.type_name.is_some() {
+            let arm = 10.0 / scale;
+            line(img, at - Pt::new(arm, 0.0), at + Pt::new(arm, 0.0), scale, color, thick)?;
+            line(img, at - Pt::new(0.0, arm), at + Pt::new(0.0, arm), scale, color, thick)?;
+            let a = p.angle_deg.to_radians();
+            let tip = at + Pt::new(a.cos(), -a.sin()).scale(45.0 / scale);
+            let (s0, s1) = (to_px(at, scale), to_px(tip, scale));
+            imgproc::arrowed_line(img, s0, s1, color, thick, imgproc::LINE_AA, 4, 0.25)?;
         }
-        if let Some(ax) = p.axis {
-            line(&mut img, ax.a, ax.b, scale, bgr(YELLOW), 3 * thick)?;
-        }
-        let label = if p.accepted {
+        let text = if p.accepted {
             format!(
-                "{} {} {:.1} deg c={:.2}",
+                "#{n} {} {} {:.1} deg",
                 p.type_name.as_deref().unwrap_or("?"),
                 p.face.map(|f| f.as_str()).unwrap_or("?"),
-                p.angle_deg,
-                p.confidence
+                crate::vision::geometry::angle_diff_deg(p.angle_deg, 0.0)
             )
         } else {
-            format!("REJECT {}{}", p.reason, p.type_name.as_deref().map(|t| format!(" ({t})")).unwrap_or_default())
+            format!("#{n} REJECT {}{}", p.reason, p.type_name.as_deref().map(|t| format!(" ({t})")).unwrap_or_default())
         };
-        // Above the part's box, kept inside the picture.
         let (lo, _) = crate::vision::geometry::bounds(&p.outline);
-        let fs = (img.cols() as f64 / 1600.0).clamp(0.35, 1.0);
-        let at = Point::new(((lo.x * scale) as i32).clamp(2, (img.cols() - 200).max(2)), ((lo.y * scale) as i32 - 6).max(14));
-        imgproc::put_text(
-            &mut img,
-            &label,
-            at,
-            imgproc::FONT_HERSHEY_SIMPLEX,
-            fs,
-            Scalar::new(0.0, 0.0, 0.0, 0.0),
-            3 * thick,
-            imgproc::LINE_AA,
-            false,
-        )?;
-        imgproc::put_text(&mut img, &label, at, imgproc::FONT_HERSHEY_SIMPLEX, fs, color, thick, imgproc::LINE_AA, false)?;
+        label(img, &text, Pt::new(lo.x * scale, lo.y * scale - 8.0), fs, color)?;
     }
-    Ok(img)
+    Ok(())
+}
+
+/// Text on a dark box at `at` (picture pixels, the text's bottom-left), kept inside the picture.
+fn label(img: &mut Mat, text: &str, at: Pt, fs: f64, color: Scalar) -> opencv::Result<()> {
+    let mut base = 0;
+    let size = imgproc::get_text_size(text, imgproc::FONT_HERSHEY_SIMPLEX, fs, 1, &mut base)?;
+    let x = (at.x as i32).clamp(2, (img.cols() - size.width - 4).max(2));
+    let y = (at.y as i32).clamp(size.height + 4, (img.rows() - base - 2).max(size.height + 4));
+    let bg = core::Rect::new(x - 3, y - size.height - 3, size.width + 6, size.height + base + 6);
+    imgproc::rectangle(img, bg, Scalar::new(20.0, 20.0, 20.0, 0.0), imgproc::FILLED, imgproc::LINE_8, 0)?;
+    imgproc::put_text(img, text, Point::new(x, y), imgproc::FONT_HERSHEY_SIMPLEX, fs, color, 1, imgproc::LINE_AA, false)
+}
+
+fn to_px(q: Pt, scale: f64) -> Point {
+    Point::new((q.x * scale * 16.0).round() as i32, (q.y * scale * 16.0).round() as i32)
+}
+
+fn fill(img: &mut Mat, pts: &[Pt], scale: f64, color: Scalar) -> opencv::Result<()> {
+    if pts.len() < 3 {
+        return Ok(());
+    }
+    let mut all = core::Vector::<core::Vector<Point>>::new();
+    all.push(pts.iter().map(|&p| to_px(p, scale)).collect());
+    imgproc::fill_poly(img, &all, color, imgproc::LINE_AA, 4, Point::new(0, 0))
 }
 
 /// A thumbnail of a template, `size` pixels square: its outline filled and its line features

@@ -55,6 +55,9 @@ pub struct Register {
     pub range: Option<(u16, u16)>,
     /// What it means, for `register-map.md`.
     pub doc: &'static str,
+    /// A code register's values and what each means (empty for others): the document lists
+    /// them and the operator view shows the word beside the number, from this one list.
+    pub codes: &'static [(u16, &'static str)],
 }
 
 /// Highest address of the map plus one; any address at or beyond is exception 0x02.
@@ -189,10 +192,14 @@ use Kind::*;
 const BOOL: &[u16] = &[0, 1];
 
 const fn reg(addr: u16, name: &'static str, access: Access, kind: Kind, unit: &'static str, doc: &'static str) -> Register {
-    Register { addr, name, access, kind, unit, allowed: None, range: None, doc }
+    Register { addr, name, access, kind, unit, allowed: None, range: None, doc, codes: &[] }
+}
+/// A read-only code register: its values are `codes`, `doc` says the rest.
+const fn coded(addr: u16, name: &'static str, codes: &'static [(u16, &'static str)], doc: &'static str) -> Register {
+    Register { addr, name, access: ReadOnly, kind: U16, unit: "code", allowed: None, range: None, doc, codes }
 }
 const fn flag(addr: u16, name: &'static str, doc: &'static str) -> Register {
-    Register { addr, name, access: ReadWrite, kind: U16, unit: "0/1", allowed: Some(BOOL), range: None, doc }
+    Register { addr, name, access: ReadWrite, kind: U16, unit: "0/1", allowed: Some(BOOL), range: None, doc, codes: &[] }
 }
 
 /// Every defined register, in address order. Addresses not listed below SIZE are reserved:
@@ -234,6 +241,7 @@ pub const MAP: &[Register] = &[
         allowed: None,
         range: Some((1, 999)),
         doc: "Write a job id (1..999; other values are exception 0x03) to switch the camera to that job: its knowledge base is (re)loaded, so writing the id in force again reloads it. JOB_STATUS tells the outcome. Reads back the last request (0 before any).",
+        codes: &[],
     },
     reg(
         addr::STATUS,
@@ -244,7 +252,7 @@ pub const MAP: &[Register] = &[
         "b0 READY (ONLINE and not BUSY and CAMERA_OK and not ERROR and no job change running: a TRIGGER edge now starts an acquisition), b1 TRIGGER_ACK, b2 BUSY, b3 RESULT_VALID, b4 RESULT_OVERRUN, b5 ERROR, b6 ONLINE, b7 CAMERA_OK.",
     ),
     reg(addr::HEARTBEAT, "HEARTBEAT", ReadOnly, U16, "count", "+1 every second (wraps)."),
-    reg(addr::ERROR_CODE, "ERROR_CODE", ReadOnly, U16, "code", "0 none, 1 camera (no frame), 2 frame (unusable), 3 knowledge base."),
+    coded(addr::ERROR_CODE, "ERROR_CODE", &[(0, "none"), (1, "camera (no frame)"), (2, "frame (unusable)"), (3, "knowledge base")], ""),
     reg(
         addr::ACQ_COUNT,
         "ACQ_COUNT",
@@ -313,13 +321,11 @@ pub const MAP: &[Register] = &[
     ),
     reg(addr::RESULT_ACK_IGNORED, "RESULT_ACK_IGNORED", ReadOnly, U16, "count", "RESULT_ACK writes that named no pending result (wraps)."),
     reg(addr::JOB_ID, "JOB_ID", ReadOnly, U16, "job id", "The job in force (a camera without configured jobs: 1)."),
-    reg(
+    coded(
         addr::JOB_STATUS,
         "JOB_STATUS",
-        ReadOnly,
-        U16,
-        "code",
-        "0 idle (no request yet), 1 changing (READY is 0; triggers count as missed; queued results stay readable), 2 done, 3 failed (the id is not configured or its knowledge base does not load: the job in force stays; the reason is logged and shown on the operator view). 2 and 3 hold until the next request. A job with an expected_type writes it into EXPECTED_TYPE when it comes into force; the PLC may overwrite it afterwards.",
+        &[(0, "idle (no request yet)"), (1, "changing"), (2, "done"), (3, "failed")],
+        "While changing, READY is 0, triggers count as missed and queued results stay readable. Failed: the id is not configured or its knowledge base does not load; the job in force stays, and the reason is logged and shown on the operator view. Done and failed hold until the next request. A job with an expected_type writes it into EXPECTED_TYPE when it comes into force; the PLC may overwrite it afterwards.",
     ),
     reg(
         addr::BOOT_ID,
@@ -338,17 +344,32 @@ pub const MAP: &[Register] = &[
         "Oldest unacknowledged result: 1..65535, wraps to 1; 0 when the queue is empty.",
     ),
     reg(addr::ACQ_ID, "ACQ_ID", ReadOnly, U16, "count", "ACQ_COUNT of the frame this result belongs to."),
-    reg(addr::DECISION, "DECISION", ReadOnly, U16, "code", "0 none (queue empty; the whole result block reads 0), 1 accept, 2 reject."),
-    reg(
+    coded(
+        addr::DECISION,
+        "DECISION",
+        &[(0, "none"), (1, "accept"), (2, "reject")],
+        "0 when the queue is empty: the whole result block reads 0.",
+    ),
+    coded(
         addr::REASON,
         "REASON",
-        ReadOnly,
-        U16,
-        "code",
-        "0 ok, 1 no part, 2 unknown type, 3 low confidence, 4 ambiguous, 5 touching/overlapping, 6 wrong type, 7 frame error, 8 at the image border, 9 covered, 10 no clearance.",
+        &[
+            (0, "ok"),
+            (1, "no part"),
+            (2, "unknown type"),
+            (3, "low confidence"),
+            (4, "ambiguous"),
+            (5, "touching/overlapping"),
+            (6, "wrong type"),
+            (7, "frame error"),
+            (8, "at the image border"),
+            (9, "covered"),
+            (10, "no clearance"),
+        ],
+        "",
     ),
     reg(addr::TYPE_ID, "TYPE_ID", ReadOnly, U16, "type id", "0 when no type."),
-    reg(addr::FACE, "FACE", ReadOnly, U16, "code", "0 unknown, 1 up, 2 down."),
+    coded(addr::FACE, "FACE", &[(0, "unknown"), (1, "up"), (2, "down")], ""),
     reg(addr::ANGLE, "ANGLE", ReadOnly, I16, "0.01 deg", "-18000..17999, robot frame."),
     reg(addr::X, "X", ReadOnly, I16, "0.1 mm", "Robot frame (saturates at -32768/32767; the float copy is exact)."),
     reg(addr::Y, "Y", ReadOnly, I16, "0.1 mm", "Robot frame (saturates at -32768/32767; the float copy is exact)."),
@@ -368,6 +389,21 @@ pub const MAP: &[Register] = &[
         "USER_DATA as latched for this result's frame (every result of the frame, no-part and frame-error results too).",
     ),
 ];
+
+/// The word a code register's value stands for (None: not a code register, or not a code).
+pub fn code_word(r: &Register, value: u16) -> Option<&'static str> {
+    r.codes.iter().find(|(v, _)| *v == value).map(|(_, w)| *w)
+}
+
+/// A register's description in the document: its codes, then what `doc` says.
+fn description(r: &Register) -> String {
+    let codes: Vec<String> = r.codes.iter().map(|(v, w)| format!("{v} {w}")).collect();
+    match (codes.is_empty(), r.doc.is_empty()) {
+        (true, _) => r.doc.to_string(),
+        (false, true) => format!("{}.", codes.join(", ")),
+        (false, false) => format!("{}. {}", codes.join(", "), r.doc),
+    }
+}
 
 /// The register defined at `addr` (the second word of a two-word value returns the same entry).
 pub fn lookup(addr: u16) -> Option<&'static Register> {
@@ -416,7 +452,7 @@ pub fn markdown() -> String {
         } else {
             (400_001 + r.addr as u32).to_string()
         };
-        s.push_str(&format!("| {address} | {plc} | {} | {access} | {} | {} | {} |\n", r.name, kind_name(r.kind), r.unit, r.doc));
+        s.push_str(&format!("| {address} | {plc} | {} | {access} | {} | {} | {} |\n", r.name, kind_name(r.kind), r.unit, description(r)));
     }
     s.push_str("\n## Exceptions\n\nChecked in the order of the Modbus specification: a unit id that is no camera gets 0x0B first; then function, quantity, address, value.\n\n");
     s.push_str("| Code | When |\n|---|---|\n");

@@ -9,7 +9,7 @@ use lfi_bridge::registers::addr;
 use lfi_bridge::vision::Face;
 
 fn request(part: usize, type_name: &str, id: u16) -> EnrolRequest {
-    EnrolRequest { part, type_name: type_name.into(), id, face: Face::Up, by: "a test".into() }
+    EnrolRequest { part, type_name: type_name.into(), id, face: Face::Up, by: "a test".into(), acq_id: None }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

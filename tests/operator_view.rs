@@ -108,67 +108,176 @@ async fn enrolling_needs_the_token_and_shows_in_the_registers() {
     running.stop().await;
 }
 
-fn chromium(args: &[&str]) -> std::process::Output {
-    let profile = tempfile::tempdir().unwrap();
-    let mut cmd = std::process::Command::new("chromium");
-    cmd.args([
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-quic",
-        "--no-first-run",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--hide-scrollbars",
-    ]);
-    cmd.arg(format!("--user-data-dir={}", profile.path().display()));
-    cmd.args(args);
-    cmd.output().unwrap_or_else(|e| panic!("cannot run chromium ({e}); install it with LFI_WITH_BROWSER=1 scripts/deps.sh"))
+/// Two cameras: the simulator at unit 1 (every condition in turn, rejects among them) and a
+/// folder camera at unit 2 whose inbox stays empty, so that its trigger times out: a camera
+/// fault for the banner.
+fn two_cameras(root: &std::path::Path) -> lfi_bridge::config::Config {
+    let sim = lfi_bridge::sim::Simulator::new(lfi_bridge::sim::SimConfig { width: 640, height: 480, seed: 4, noise: None }).unwrap();
+    let mut kb = lfi_bridge::kb::KnowledgeBase::default();
+    for t in common::enrolled(&sim) {
+        kb.enroll(t, "sim".into()).unwrap();
+    }
+    kb.save(&root.join("kb.toml")).unwrap();
+    std::fs::create_dir_all(root.join("inbox")).unwrap();
+    let text = "[modbus]\nbind = \"127.0.0.1:0\"\n[http]\nbind = \"127.0.0.1:0\"\ntoken = \"test-token-123\"\n[log]\nlevel = \"warn\"\n\
+        [[camera]]\nunit_id = 1\nkb_from_simulator = true\nmm_per_px = 0.5\n[camera.source]\nkind = \"sim\"\nwidth = 640\nheight = 480\nscenes = 9\nseed = 4\n\
+        [[camera]]\nunit_id = 2\nname = \"belt2\"\nkb = \"kb.toml\"\n[camera.source]\nkind = \"dir\"\npath = \"inbox\"\ntimeout_ms = 300\n";
+    lfi_bridge::config::Config::from_toml(text, &root.join("appliance.toml")).unwrap()
 }
 
+/// The page in a real browser (headless Chromium through chromedriver), against what the PLC
+/// reads: the latest frame's parts (PART_INDEX, DECISION, TYPE_ID, ANGLE, X, Y) as the result
+/// registers give them and every register's raw value; a reject in the history with its why
+/// panel; a camera fault as a banner; every control refused without the token and doing, with
+/// it, what the PLC then reads. Screenshots at 1600 x 1200 and 800 x 1000 go to target/.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn headless_chromium_shows_the_frame_and_the_registers_the_plc_reads() {
-    let running = start(&config("", "")).await;
-    one_frame(&running).await;
-    let url = format!("http://{}/", running.http_addr.unwrap());
-    let dom = {
-        let url = url.clone();
-        tokio::task::spawn_blocking(move || chromium(&["--virtual-time-budget=8000", "--dump-dom", &url])).await.unwrap()
-    };
-    let html = String::from_utf8_lossy(&dom.stdout).to_string();
-    assert!(html.contains("data-updated"), "the page never updated:\n{}", String::from_utf8_lossy(&dom.stderr));
-    // The picture arrived (its onload marks the frame sequence).
-    let loaded = html
-        .split("id=\"frame\"")
-        .nth(1)
-        .and_then(|s| s.split("data-loaded=\"").nth(1))
-        .and_then(|s| s.split('"').next())
-        .unwrap_or("0")
-        .to_string();
-    assert_ne!(loaded, "0", "the frame picture did not load");
-    // Every register the page shows equals what the PLC reads (the heartbeat excepted: it ticks).
+async fn in_chromium_the_page_shows_what_the_plc_reads_the_history_with_its_why_a_fault_and_the_controls() {
+    let root = tempfile::tempdir().unwrap();
+    let running = start(&two_cameras(root.path())).await;
     let mut ctx = plc(running.modbus_addr, 1).await;
+    let mut blocks = Vec::new();
+    for _ in 0..9 {
+        blocks = cycle(&mut ctx).await;
+    }
+    let acq = blocks[0][(addr::ACQ_ID - 100) as usize];
+    let url = format!("http://{}/", running.http_addr.unwrap());
+    let browser = tokio::task::spawn_blocking(common::webdriver::Browser::start).await.unwrap();
+    let b = std::sync::Arc::new(browser);
+    let on = |f: Box<dyn FnOnce(&common::webdriver::Browser) -> serde_json::Value + Send>| {
+        let b = b.clone();
+        async move { tokio::task::spawn_blocking(move || f(&b)).await.unwrap() }
+    };
+    let long = Duration::from_secs(20);
+    let stamp = format!("ACQ_ID {acq} ");
+    on(Box::new(move |b| {
+        b.goto(&url);
+        b.wait(&format!("return document.getElementById('stamp').textContent.startsWith({stamp:?}) && document.getElementById('frame').dataset.loaded !== '0' && document.querySelectorAll('#parts tbody tr').length > 0"), long)
+    }))
+    .await;
+
+    // The parts as the PLC read them for the same frame.
+    let rows = on(Box::new(|b| {
+        b.js("return [...document.querySelectorAll('#parts tbody tr')].map(r => [Number(r.dataset.index), r.dataset.decision, Number(r.dataset.type), Number(r.dataset.angle), Number(r.dataset.x), Number(r.dataset.y)])")
+    }))
+    .await;
+    let rows = rows.as_array().unwrap();
+    assert_eq!(rows.len(), blocks.len(), "one row per result: {rows:?}");
+    let at = |blk: &Vec<u16>, a: u16| blk[(a - 100) as usize];
+    for (row, blk) in rows.iter().zip(&blocks) {
+        let decision = if at(blk, addr::DECISION) == 1 { "accept" } else { "reject" };
+        assert_eq!(row[0].as_u64(), Some(at(blk, addr::PART_INDEX) as u64), "PART_INDEX: {row}");
+        assert_eq!(row[1].as_str(), Some(decision), "DECISION: {row}");
+        assert_eq!(row[2].as_u64(), Some(at(blk, addr::TYPE_ID) as u64), "TYPE_ID: {row}");
+        assert!((row[3].as_f64().unwrap() - at(blk, addr::ANGLE) as i16 as f64 / 100.0).abs() < 0.006, "ANGLE: {row}");
+        assert!((row[4].as_f64().unwrap() - at(blk, addr::X) as i16 as f64 / 10.0).abs() < 0.11, "X: {row}");
+        assert!((row[5].as_f64().unwrap() - at(blk, addr::Y) as i16 as f64 / 10.0).abs() < 0.11, "Y: {row}");
+    }
+    // Every register the page shows equals what the PLC reads (HEARTBEAT ticks, so not it).
+    let cells = on(Box::new(|b| {
+        b.js("return Object.fromEntries([...document.querySelectorAll('[id^=reg-]')].map(e => [e.id.slice(4), e.textContent]))")
+    }))
+    .await;
     let mut words = read(&mut ctx, 0, 120).await;
     words.extend(read(&mut ctx, 120, 120).await);
-    let mut checked = 0;
     for r in map::MAP.iter().filter(|r| r.addr != addr::HEARTBEAT) {
-        let cell = format!("id=\"reg-{}\">", r.addr);
-        let shown =
-            html.split(&cell).nth(1).and_then(|s| s.split('<').next()).unwrap_or_else(|| panic!("register {} not on the page", r.name));
         let expect: Vec<String> = (0..r.kind.words()).map(|i| words[(r.addr + i) as usize].to_string()).collect();
-        assert_eq!(shown, expect.join(" "), "{} on the page vs Modbus", r.name);
-        checked += 1;
+        assert_eq!(cells[r.addr.to_string()].as_str(), Some(expect.join(" ").as_str()), "{} on the page vs Modbus", r.name);
     }
-    assert_eq!(checked, map::MAP.len() - 1);
-    assert!(html.contains("class=\"accept\"") || html.contains("class=\"reject\""), "the part table is empty");
-    // A screenshot for the record (target/operator-view.png).
-    let shot = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/operator-view.png");
-    let arg = format!("--screenshot={}", shot.display());
-    let out = tokio::task::spawn_blocking(move || chromium(&["--virtual-time-budget=8000", "--window-size=1400,1300", &arg, &url]))
-        .await
-        .unwrap();
-    assert!(shot.exists(), "no screenshot: {}", String::from_utf8_lossy(&out.stderr));
+
+    // Screenshots, and the layout: two columns at 1600, the result block in view at 1280 x 800,
+    // one column at 800.
+    let target = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target");
+    let shot = target.join("operator-view-1600.png");
+    on(Box::new(move |b| {
+        b.screenshot(&shot);
+        b.size(1280, 800);
+        b.wait("return document.querySelector('#parts tbody tr').getBoundingClientRect().bottom <= window.innerHeight", long)
+    }))
+    .await;
+    let shot = target.join("operator-view-800.png");
+    let columns = on(Box::new(move |b| {
+        b.size(800, 1000);
+        let c = b.wait(
+            "const c = getComputedStyle(document.querySelector('main')).gridTemplateColumns.split(' ').length; return c === 1 && c",
+            long,
+        );
+        b.screenshot(&shot);
+        b.size(1600, 1200);
+        c
+    }))
+    .await;
+    assert_eq!(columns, 1);
+
+    // A reject in the history, and its why panel with the measure that failed.
+    let why = on(Box::new(move |b| {
+        // Thumbnails from memory; with "rejects only", acquisitions with a reject only.
+        b.wait("const i = document.querySelector('.hitem img'); return i && i.complete && i.naturalWidth > 0", long);
+        b.click("#rejects");
+        b.wait("const h = [...document.querySelectorAll('.hitem')]; return h.length > 0 && h.length < 9 && h.every(e => e.dataset.rejected !== '0')", long);
+        b.click(".hitem[data-rejected]:not([data-rejected=\"0\"])");
+        b.wait("return document.getElementById('why').className === 'on' && document.querySelector('#measures tr[data-pass=false]') && document.getElementById('whyverdict').textContent", long)
+    }))
+    .await;
+    assert!(why.as_str().unwrap().contains("reject"), "why: {why}");
+    let shot = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/operator-view-why.png");
+    on(Box::new(move |b| {
+        b.js("document.getElementById('why').scrollIntoView(); return 1");
+        b.screenshot(&shot);
+        serde_json::Value::Null
+    }))
+    .await;
+
+    // Camera 2's trigger finds no frame: ERROR, shown as a banner with its text.
+    let mut ctx2 = plc(running.modbus_addr, 2).await;
+    write(&mut ctx2, addr::TRIGGER, 1).await;
+    wait_status(&mut ctx2, |s| s & status::ERROR != 0, Duration::from_secs(10)).await;
+    write(&mut ctx2, addr::TRIGGER, 0).await;
+    let banner = on(Box::new(move |b| {
+        b.js("const s = document.getElementById('cam'); s.value = '2'; s.dispatchEvent(new Event('change')); return 1");
+        b.wait("const e = document.getElementById('banner'); return e.className === 'error' && e.textContent", long)
+    }))
+    .await;
+    assert!(banner.as_str().unwrap().contains("camera (no frame)"), "banner: {banner}");
+
+    // Controls: refused without the token, done with it, as the PLC then reads.
+    let press = |token: &'static str, button: &'static str| {
+        let b = b.clone();
+        async move {
+            tokio::task::spawn_blocking(move || {
+                b.js(&format!("document.getElementById('token').value = {token:?}; document.getElementById('cresult').removeAttribute('data-status'); return 1"));
+                b.click(button);
+                b.wait("return document.getElementById('cresult').dataset.status", Duration::from_secs(10))
+            })
+            .await
+            .unwrap()
+        }
+    };
+    assert_eq!(press("", "button[data-action=clear_error]").await, "401");
+    assert_eq!(press("test-token-123", "button[data-action=clear_error]").await, "200");
+    assert_eq!(read(&mut ctx2, addr::STATUS, 1).await[0] & status::ERROR, 0, "ERROR cleared from the page");
+    on(Box::new(|b| b.js("const s = document.getElementById('cam'); s.value = '1'; s.dispatchEvent(new Event('change')); return 1"))).await;
+    for (button, register, expect) in
+        [("button[data-action=online][data-value='0']", addr::ONLINE, 0), ("button[data-action=online][data-value='1']", addr::ONLINE, 1)]
+    {
+        assert_eq!(press("", button).await, "401");
+        assert_eq!(read(&mut ctx, register, 1).await[0], 1 - expect, "nothing changed without the token");
+        assert_eq!(press("test-token-123", button).await, "200");
+        assert_eq!(read(&mut ctx, register, 1).await[0], expect, "{button}");
+    }
+    on(Box::new(|b| b.js("document.getElementById('etypesel').value = '2'; return 1"))).await;
+    assert_eq!(press("", "#setexp").await, "401");
+    assert_eq!(press("test-token-123", "#setexp").await, "200");
+    assert_eq!(read(&mut ctx, addr::EXPECTED_TYPE, 1).await[0], 2);
+    let acq0 = read(&mut ctx, addr::ACQ_COUNT, 1).await[0];
+    assert_eq!(press("", "button[data-action=trigger]").await, "401");
+    assert_eq!(press("test-token-123", "button[data-action=trigger]").await, "200");
+    wait_status(&mut ctx, |s| s & status::RESULT_VALID != 0 && s & status::BUSY == 0, Duration::from_secs(10)).await;
+    assert_eq!(read(&mut ctx, addr::ACQ_COUNT, 1).await[0], acq0.wrapping_add(1), "one acquisition from the page's trigger");
+    let seq = read(&mut ctx, addr::RESULT_SEQ, 1).await[0];
+    assert_eq!(press("", "button[data-action=ack]").await, "401");
+    assert_eq!(press("test-token-123", "button[data-action=ack]").await, "200");
+    assert_ne!(read(&mut ctx, addr::RESULT_SEQ, 1).await[0], seq, "the result acknowledged from the page");
+    drop(b);
     running.stop().await;
 }
 

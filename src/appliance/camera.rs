@@ -64,8 +64,11 @@ pub struct Live {
     pub debris_last: u64,
     /// The latest cycle times (trigger to results), ms, newest last.
     pub cycle_ms: std::collections::VecDeque<f64>,
-    /// The latest camera or frame fault, as the log wrote it (None once a frame succeeds).
+    /// The latest camera or frame fault, as the log wrote it (kept after the fault is cleared:
+    /// `last_error_at_s` says when, the page compares it with the frame's time).
     pub last_error: Option<String>,
+    /// Seconds since start when `last_error` happened.
+    pub last_error_at_s: f64,
     /// ACQ_ID of `results`.
     pub acq_id: u16,
     /// ACQ_ID of `frame` and `estimate` (older than `acq_id` after a failed acquisition).
@@ -90,6 +93,10 @@ pub(crate) struct Worker {
     pub robot_sends_all: bool,
     /// The image archive, if configured (dropped with the worker: it writes what was queued).
     pub archive: Option<super::archive::Archive>,
+    /// The operator view's history, if kept.
+    pub history: Option<super::history::Recorder>,
+    /// Told of every frame and fault.
+    pub changes: super::Changes,
     /// The jobs the PLC may switch between, and what loading one needs.
     pub jobs: Vec<crate::config::JobConfig>,
     pub source_config: crate::config::SourceConfig,
@@ -200,15 +207,19 @@ impl Worker {
         self.source.maintain();
         let ok = self.source.ok();
         let mut hs = self.handshake.lock().unwrap_or_else(|p| p.into_inner());
-        if hs.camera_ok() != ok {
-            if ok {
-                tracing::info!(camera = %self.name, "camera OK");
-            } else {
-                tracing::warn!(camera = %self.name, "camera not OK");
-            }
-        }
+        let changed = hs.camera_ok() != ok;
         // Every look, not only changes: the handshake tells a lost camera from one never seen.
         hs.set_camera_ok(ok);
+        drop(hs);
+        if changed {
+            if ok {
+                tracing::info!(camera = %self.name, "camera OK");
+                super::bump(&self.changes);
+            } else {
+                tracing::warn!(camera = %self.name, "camera not OK");
+                self.note_fault("camera not OK: it stopped answering or is not connected".into());
+            }
+        }
     }
 
     fn process(&mut self, acq_id: u16, frame: Result<super::source::Frame, SourceError>, t0: Instant) {
@@ -271,7 +282,28 @@ impl Worker {
             }
         }
         let cycle = t0.elapsed().as_secs_f64() * 1e3;
+        if let Some(history) = &self.history
+            && !results.is_empty()
+        {
+            let (frame, label, estimate) = match (&estimated, &unusable) {
+                (Some((image, label, fe)), _) => (Some(image.clone()), label.clone(), Some(fe.clone())),
+                (None, Some((image, label, _))) => (Some(image.clone()), label.clone(), None),
+                (None, None) => (None, String::new(), None),
+            };
+            let error = if estimated.is_some() { None } else { self.live.lock().unwrap_or_else(|p| p.into_inner()).last_error.clone() };
+            history.offer(super::history::Offer {
+                acq_id,
+                at_s: self.started.elapsed().as_secs_f64(),
+                label,
+                results: results.clone(),
+                estimate,
+                frame,
+                error,
+                cycle_ms: cycle,
+            });
+        }
         self.note_results(acq_id, results, estimated, cycle);
+        super::bump(&self.changes);
     }
 
     /// One line per final result, with the estimate's numbers at debug level.
@@ -318,10 +350,19 @@ impl Worker {
         }
     }
 
+    /// An acquisition without a usable frame: counted, and the latest fault.
     fn note_error(&self, msg: String) {
+        self.live.lock().unwrap_or_else(|p| p.into_inner()).frame_errors += 1;
+        self.note_fault(msg);
+    }
+
+    /// The latest fault, with when it happened, for the page's banner.
+    fn note_fault(&self, msg: String) {
         let mut live = self.live.lock().unwrap_or_else(|p| p.into_inner());
-        live.frame_errors += 1;
         live.last_error = Some(msg);
+        live.last_error_at_s = self.started.elapsed().as_secs_f64();
+        drop(live);
+        super::bump(&self.changes);
     }
 
     /// The operator view's copy of an acquisition: counters from the final results (a no-part

@@ -23,6 +23,9 @@ pub struct EnrolRequest {
     pub face: Face,
     /// Who asked (kept as the template's source, e.g. "operator view (10.0.0.7:51234)").
     pub by: String,
+    /// The ACQ_ID of the frame the part was chosen on, if the request names it: a newer frame
+    /// in the meantime refuses the request instead of enrolling another part.
+    pub acq_id: Option<u16>,
 }
 
 /// An enrolment done.
@@ -42,6 +45,14 @@ pub enum EnrolError {
     /// No frame has been taken yet.
     #[error("no frame yet: trigger one first")]
     NoFrame,
+    /// The part was chosen on a frame that is no longer the current one.
+    #[error("part chosen on frame ACQ_ID {asked}, but the current frame is ACQ_ID {current}: choose again")]
+    FrameChanged {
+        /// The frame the request names.
+        asked: u16,
+        /// The current frame.
+        current: u16,
+    },
     /// The part number is not one of the frame's parts.
     #[error("the current frame has no part {part} (PART_INDEX 1..={count})")]
     NoPart {
@@ -95,7 +106,9 @@ impl EnrolError {
     pub fn is_conflict(&self) -> bool {
         matches!(
             self,
-            EnrolError::NoFrame | EnrolError::Kb(crate::kb::KbError::IdConflict { .. } | crate::kb::KbError::NameConflict { .. })
+            EnrolError::NoFrame
+                | EnrolError::FrameChanged { .. }
+                | EnrolError::Kb(crate::kb::KbError::IdConflict { .. } | crate::kb::KbError::NameConflict { .. })
         )
     }
 }
@@ -106,11 +119,16 @@ impl CameraHandle {
     pub fn enrol(&self, req: &EnrolRequest) -> Result<Enrolled, EnrolError> {
         // Before anything is cut or written: the name also becomes the template image's file name.
         crate::kb::valid_type_name(&req.type_name)?;
-        let (frame, estimate, label) = {
+        let (frame, estimate, label, current) = {
             let live = self.live.lock().unwrap_or_else(|p| p.into_inner());
-            (live.frame.clone(), live.estimate.clone(), live.label.clone())
+            (live.frame.clone(), live.estimate.clone(), live.label.clone(), live.frame_acq_id)
         };
         let (Some(frame), Some(estimate)) = (frame, estimate) else { return Err(EnrolError::NoFrame) };
+        if let Some(asked) = req.acq_id
+            && asked != current
+        {
+            return Err(EnrolError::FrameChanged { asked, current });
+        }
         let part =
             estimate.parts.get(req.part.wrapping_sub(1)).ok_or(EnrolError::NoPart { part: req.part, count: estimate.parts.len() })?;
         let crop = crop_part(&frame, &part.outline).ok_or(EnrolError::AtBorder { part: req.part })?;
@@ -138,6 +156,7 @@ impl CameraHandle {
         let types = kb.type_count() as u16;
         *self.templates.lock().unwrap_or_else(|p| p.into_inner()) = kb;
         self.handshake.lock().unwrap_or_else(|p| p.into_inner()).set_types_enrolled(types);
+        super::bump(&self.changes);
         tracing::info!(
             camera = %self.name,
             "{} template {} {} (id {}) from part {} of {from}, asked by {}; {saved}",

@@ -6,6 +6,7 @@ pub mod archive;
 pub mod camera;
 pub mod enrol;
 pub mod genicam;
+pub mod history;
 pub mod source;
 
 use std::net::SocketAddr;
@@ -103,6 +104,13 @@ pub struct CameraHandle {
     pub robot: Option<Arc<Mutex<crate::registers::RobotView>>>,
     /// The image archive (its counters, and where to read it back), if one is configured.
     pub archive: Option<archive::Shelf>,
+    /// The last acquisitions in memory, for the operator view's history (None: `[http]
+    /// history_frames = 0` or no operator view).
+    pub history: Option<history::Shelf>,
+    /// Bumped whenever something the operator view shows changes.
+    pub changes: Changes,
+    /// When the appliance started (the handshake's clock).
+    pub started: Instant,
     /// A GenICam camera's model, format and frame counters.
     pub genicam: Option<Arc<genicam::GenicamStats>>,
     /// The configured jobs (id, name), for the operator view.
@@ -224,6 +232,8 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
     let stop = Arc::new(AtomicBool::new(false));
     let params = Params { accept_threshold: cfg.accept_threshold, ..Params::default() };
     let mut cameras = Vec::new();
+    let changes: Changes = Arc::new(tokio::sync::watch::channel(0).0);
+    let history_frames = cfg.http.as_ref().map_or(0, |h| h.history_frames);
     let mut stations = Vec::new();
     let mut robot_links = Vec::new();
     for cam in &cfg.cameras {
@@ -280,6 +290,13 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             None => None,
         };
         let shelf = archive.as_ref().map(archive::Archive::shelf);
+        let (history, history_shelf) = if history_frames > 0 {
+            let c = changes.clone();
+            let (rec, shelf) = history::Recorder::start(&cam.name, history_frames, move || bump(&c));
+            (Some(rec), Some(shelf))
+        } else {
+            (None, None)
+        };
         let worker = Worker {
             name: cam.name.clone(),
             trigger: cam.trigger,
@@ -295,6 +312,8 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             robot_sends_all: cam.robot.as_ref().is_some_and(|r| r.send == crate::config::RobotSend::All),
             robot: robot_tx,
             archive,
+            history,
+            changes: changes.clone(),
             jobs: cam.jobs.clone(),
             source_config: cam.source.clone(),
             base_params: params.clone(),
@@ -319,6 +338,9 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             templates,
             robot: robot_view,
             archive: shelf,
+            history: history_shelf,
+            changes: changes.clone(),
+            started,
             genicam,
             commands: tx.clone(),
             jobs: cam.jobs.iter().map(|j| (j.id, j.name.clone())).collect(),
@@ -373,34 +395,51 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
     Ok(Running { modbus_addr, http_addr: None, cameras, stations, stats, started, shutdown, stop, tasks })
 }
 
-/// Why a job change was not started.
+/// Bumped whenever something the operator view shows changes (a frame, a fault, a history
+/// entry filed, a change made from the page): the page's live updates wait on it instead of
+/// polling.
+pub type Changes = Arc<tokio::sync::watch::Sender<u64>>;
+
+/// Says that something changed.
+pub fn bump(changes: &Changes) {
+    changes.send_modify(|v| *v = v.wrapping_add(1));
+}
+
+/// Why a write from the operator view did not happen.
 #[derive(Debug, thiserror::Error)]
-pub enum JobRequestError {
-    /// Not a job id the PLC may write.
-    #[error("job id {0} is outside 1..=999")]
-    OutOfRange(u16),
+pub enum ControlError {
+    /// The write a PLC would get an exception for, with the exception.
+    #[error("{name} = {value} refused as a PLC's write would be ({exception:?})")]
+    Refused {
+        /// The register's name.
+        name: &'static str,
+        /// The value.
+        value: u16,
+        /// What the Modbus service answered.
+        exception: tokio_modbus::ExceptionCode,
+    },
     /// The worker is gone (the appliance is stopping).
     #[error("the camera's worker has stopped")]
     Stopped,
 }
 
 impl CameraHandle {
-    /// Asks for job `id` as a PLC does (a JOB_REQUEST write: the same rule, the same JOB_STATUS,
-    /// the same READY), for the operator view. The outcome shows in JOB_STATUS.
-    pub fn request_job(&self, id: u16) -> Result<(), JobRequestError> {
-        let reg = crate::registers::lookup(crate::registers::addr::JOB_REQUEST).expect("JOB_REQUEST is in the map");
-        if !crate::registers::value_allowed(reg, id) {
-            return Err(JobRequestError::OutOfRange(id));
-        }
-        let cmd = {
+    /// Writes one register as a PLC's FC6 would (the same checks, the same handshake, the same
+    /// commands to the worker), for the operator view's commissioning controls: what the page
+    /// does, the PLC sees, and nothing the PLC could not do.
+    pub fn write_as_plc(&self, addr: u16, value: u16) -> Result<(), ControlError> {
+        let name = crate::registers::lookup(addr).map_or("(no register)", |r| r.name);
+        let request = tokio_modbus::Request::WriteSingleRegister(addr, value);
+        let (_, commands) = {
             let mut hs = self.handshake.lock().unwrap_or_else(|p| p.into_inner());
-            // A JOB_REQUEST write takes no time stamp (only a TRIGGER edge does).
-            hs.write(crate::registers::addr::JOB_REQUEST, id, std::time::Duration::ZERO)
-        };
-        match cmd {
-            Some(c) => self.commands.send(c).map_err(|_| JobRequestError::Stopped),
-            None => Ok(()),
+            crate::modbus::service::handle(&mut hs, &request, true, self.started.elapsed())
         }
+        .map_err(|exception| ControlError::Refused { name, value, exception })?;
+        bump(&self.changes);
+        for c in commands {
+            self.commands.send(c).map_err(|_| ControlError::Stopped)?;
+        }
+        Ok(())
     }
 }
 
@@ -425,5 +464,15 @@ impl Running {
             }
         }
         tracing::info!("appliance stopped");
+    }
+}
+
+impl Drop for Running {
+    /// Dropped without [`Running::stop`] (a panic, an early return): the threads and tasks are
+    /// told to end, so that nothing waits for them forever (the operator view's thread is joined
+    /// by a blocking task its runtime would otherwise wait for).
+    fn drop(&mut self) {
+        self.shutdown.cancel();
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
     }
 }

@@ -17,7 +17,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use axum::Router;
-use axum::extract::{ConnectInfo, Path, State};
+use axum::extract::{ConnectInfo, Path, Query, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
@@ -28,10 +28,13 @@ use tokio_util::sync::CancellationToken;
 use crate::appliance::enrol::{EnrolError, EnrolRequest};
 use crate::appliance::{CameraHandle, Running, StartError};
 use crate::config::HttpConfig;
-use crate::handshake::WordOrder;
 use crate::modbus::server::Stats;
-use crate::registers::{self as map, Kind, MAP, u32_from_words};
+use crate::registers::{self as map};
 use crate::vision::{Face, Reason};
+
+mod views;
+
+use views::{StateView, camera_view, history_view, nan_to_zero};
 
 const PAGE: &str = include_str!("page.html");
 
@@ -171,6 +174,10 @@ pub fn router(state: AppState) -> Router {
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics))
         .route("/api/state", get(api_state))
+        .route("/api/events", get(events))
+        .route("/api/camera/{unit}/history", get(history_list))
+        .route("/api/camera/{unit}/history/{id}/frame.jpg", get(history_frame))
+        .route("/api/camera/{unit}/control", post(control))
         .route("/api/camera/{unit}/frame.jpg", get(frame_jpg))
         .route("/api/camera/{unit}/templates", get(templates))
         .route("/api/camera/{unit}/template/{index}", get(template_png))
@@ -200,11 +207,6 @@ async fn healthz(State(state): State<AppState>) -> Response {
     } else {
         (StatusCode::SERVICE_UNAVAILABLE, text, format!("camera not ok: {}\n", bad.join(", "))).into_response()
     }
-}
-
-/// No measurements yet reads 0 on the page and in the metrics.
-fn nan_to_zero(v: f64) -> f64 {
-    if v.is_nan() { 0.0 } else { v }
 }
 
 /// Metric families: name, type, help.
@@ -333,240 +335,52 @@ async fn metrics(State(state): State<AppState>) -> Response {
     (StatusCode::OK, [(header::CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")], m).into_response()
 }
 
-#[derive(Serialize)]
-struct RegisterView {
-    addr: u16,
-    plc: u32,
-    name: &'static str,
-    access: &'static str,
-    raw: Vec<u16>,
-    value: String,
-    unit: &'static str,
-}
-
-#[derive(Serialize)]
-struct Lamp {
-    name: &'static str,
-    on: bool,
-}
-
-/// One final result of the latest acquisition, as the PLC got it.
-#[derive(Serialize)]
-struct PartView {
-    acq_id: u16,
-    /// PART_INDEX: 1.. in picking order; 0 for a no-part or frame-error result.
-    index: u16,
-    accepted: bool,
-    reason: &'static str,
-    type_id: u16,
-    type_name: Option<String>,
-    face: Option<&'static str>,
-    angle_deg: f64,
-    x_px: f64,
-    y_px: f64,
-    /// Robot frame, as in the result registers.
-    x_mm: f64,
-    y_mm: f64,
-    confidence: f64,
-    detail: String,
-}
-
-#[derive(Serialize)]
-struct CameraView {
-    unit_id: u8,
-    name: String,
-    frame_seq: u64,
-    frame_label: String,
-    registers: Vec<RegisterView>,
-    status: Vec<Lamp>,
-    robot: Option<Vec<Lamp>>,
-    frames: u64,
-    frame_errors: u64,
-    accepted: u64,
-    rejected: Vec<(String, u64)>,
-    cycle_median_ms: f64,
-    cycle_p95_ms: f64,
-    /// Cycle-time histogram: counts in bins of `histogram_bin_ms` from 0 (the last bin is open).
-    histogram: Vec<u32>,
-    histogram_bin_ms: f64,
-    parts: Vec<PartView>,
-    last_error: Option<String>,
-    job: JobView,
-    /// A GenICam camera: what it is and what it delivered.
-    genicam: Option<GenicamView>,
-}
-
-/// A GenICam camera on the page.
-#[derive(Serialize)]
-struct GenicamView {
-    /// None until the camera was first connected.
-    camera: Option<crate::appliance::genicam::CameraInfo>,
-    received: u64,
-    dropped: u64,
-    incomplete: u64,
-    reconnects: u64,
-}
-
-/// The job in force and the last change, from the same snapshot as the registers.
-#[derive(Serialize)]
-struct JobView {
-    id: u16,
-    name: String,
-    /// "idle", "changing", "done" or "failed" (JOB_STATUS).
-    status: &'static str,
-    /// The last JOB_REQUEST (0: none yet).
-    request: u16,
-    /// Every configured job: (id, name).
-    jobs: Vec<(u16, String)>,
-}
-
-#[derive(Serialize)]
-struct StateView {
-    uptime_s: f64,
-    modbus_clients: usize,
-    modbus_requests: usize,
-    modbus_exceptions: usize,
-    can_change: bool,
-    cameras: Vec<CameraView>,
-}
-
-/// Register contents decoded for people: scaled values, signed words, floats, bit patterns.
-fn decode(words: &[u16], order: WordOrder) -> Vec<RegisterView> {
-    MAP.iter()
-        .map(|r| {
-            let a = r.addr as usize;
-            let raw: Vec<u16> = words[a..a + r.kind.words() as usize].to_vec();
-            let joined = u32_from_words([raw[0], raw.get(1).copied().unwrap_or(0)], order);
-            let w = raw[0];
-            let value = match (r.kind, r.unit) {
-                (Kind::I16, "0.01 deg") => format!("{:.2} deg", w as i16 as f64 / 100.0),
-                (Kind::I16, "0.1 mm") => format!("{:.1} mm", w as i16 as f64 / 10.0),
-                (Kind::I16, _) => (w as i16).to_string(),
-                (Kind::U16, "0.1 ms") => format!("{:.1} ms", w as f64 / 10.0),
-                (Kind::U16, "0.001") => format!("{:.3}", w as f64 / 1000.0),
-                (Kind::Bits, _) => format!("{w:08b}"),
-                (Kind::F32, unit) => format!("{:.3} {unit}", f32::from_bits(joined)),
-                (Kind::U32, _) => joined.to_string(),
-                _ => w.to_string(),
-            };
-            RegisterView {
-                addr: r.addr,
-                plc: 400_001 + r.addr as u32,
-                name: r.name,
-                access: if r.access == map::Access::ReadWrite { "R/W" } else { "R" },
-                raw,
-                value,
-                unit: r.unit,
-            }
-        })
-        .collect()
-}
-
-fn camera_view(c: &CameraHandle) -> CameraView {
-    // The same snapshot the Modbus server serves: one lock, one read of the whole map.
-    let (words, order) = {
-        let hs = c.handshake.lock().unwrap_or_else(|p| p.into_inner());
-        (hs.read(0, map::SIZE), hs.settings().word_order)
-    };
-    let job = {
-        use map::job_status as js;
-        let name = c.job.lock().unwrap_or_else(|p| p.into_inner()).name.clone();
-        let status = match words[map::addr::JOB_STATUS as usize] {
-            js::IDLE => "idle",
-            js::CHANGING => "changing",
-            js::DONE => "done",
-            _ => "failed",
-        };
-        JobView {
-            id: words[map::addr::JOB_ID as usize],
-            name,
-            status,
-            request: words[map::addr::JOB_REQUEST as usize],
-            jobs: c.jobs.clone(),
-        }
-    };
-    let live = c.live.lock().unwrap_or_else(|p| p.into_inner());
-    let cycles: Vec<f64> = live.cycle_ms.iter().copied().collect();
-    let p95 = nan_to_zero(crate::eval::percentile(&cycles, 0.95));
-    let bin = ((p95.max(1.0) * 1.25) / 12.0).max(0.5);
-    let mut histogram = vec![0u32; 12];
-    for v in &cycles {
-        histogram[((v / bin) as usize).min(11)] += 1;
-    }
-    let lamps = |word: u16, names: &[&'static str]| {
-        names.iter().enumerate().map(|(i, n)| Lamp { name: n, on: word & (1 << i) != 0 }).collect::<Vec<_>>()
-    };
-    CameraView {
-        unit_id: c.unit_id,
-        name: c.name.clone(),
-        frame_seq: live.seq,
-        frame_label: live.label.clone(),
-        registers: decode(&words, order),
-        status: lamps(words[map::addr::STATUS as usize], &map::status::NAMES),
-        robot: c.robot.as_ref().map(|_| lamps(words[map::addr::ROBOT_STATUS as usize], &map::robot_status::NAMES)),
-        frames: live.frames,
-        frame_errors: live.frame_errors,
-        accepted: live.accepted,
-        rejected: Reason::ALL.iter().skip(1).map(|r| (r.as_str().to_string(), live.rejected[r.code() as usize])).collect(),
-        cycle_median_ms: nan_to_zero(crate::eval::percentile(&cycles, 0.5)),
-        cycle_p95_ms: p95,
-        histogram,
-        histogram_bin_ms: bin,
-        parts: part_views(&live),
-        last_error: live.last_error.clone(),
-        job,
-        genicam: c.genicam.as_ref().map(|g| {
-            use std::sync::atomic::Ordering::Relaxed;
-            let info = g.info.lock().unwrap_or_else(|p| p.into_inner()).clone();
-            GenicamView {
-                camera: info,
-                received: g.received.load(Relaxed),
-                dropped: g.dropped.load(Relaxed),
-                incomplete: g.incomplete.load(Relaxed),
-                reconnects: g.reconnects.load(Relaxed),
-            }
-        }),
-    }
-}
-
-/// The latest acquisition's final results, each with its estimate when the frame was estimated.
-fn part_views(live: &crate::appliance::Live) -> Vec<PartView> {
-    let estimate = live.estimate.as_ref().filter(|_| live.frame_acq_id == live.acq_id);
-    live.results
-        .iter()
-        .map(|r| {
-            let p = estimate.and_then(|fe| fe.parts.get((r.index as usize).wrapping_sub(1))).filter(|_| r.is_part());
-            PartView {
-                acq_id: r.acq_id,
-                index: r.index,
-                accepted: r.part.accepted,
-                reason: r.part.reason.as_str(),
-                type_id: r.part.type_id,
-                type_name: p.and_then(|p| p.type_name.clone()),
-                face: p.and_then(|p| p.face.map(|f| f.as_str())),
-                angle_deg: r.part.angle_deg,
-                x_px: p.map(|p| p.x).unwrap_or(0.0),
-                y_px: p.map(|p| p.y).unwrap_or(0.0),
-                x_mm: r.part.x_mm,
-                y_mm: r.part.y_mm,
-                confidence: r.part.confidence,
-                detail: p.map(|p| p.detail()).unwrap_or_else(|| r.part.reason.as_str().to_string()),
-            }
-        })
-        .collect()
-}
-
-async fn api_state(State(state): State<AppState>) -> Response {
+/// The whole page's state, as `/api/state` and every live update give it.
+fn state_view(state: &AppState) -> StateView {
     use std::sync::atomic::Ordering::Relaxed;
-    let view = StateView {
+    StateView {
         uptime_s: state.started.elapsed().as_secs_f64(),
         modbus_clients: state.stats.connected.load(Relaxed),
         modbus_requests: state.stats.requests.load(Relaxed),
         modbus_exceptions: state.stats.exceptions.load(Relaxed),
         can_change: state.token.is_some(),
         cameras: state.cameras.iter().map(camera_view).collect(),
-    };
-    ([(header::CACHE_CONTROL, "no-store")], axum::Json(view)).into_response()
+    }
+}
+
+async fn api_state(State(state): State<AppState>) -> Response {
+    ([(header::CACHE_CONTROL, "no-store")], axum::Json(state_view(&state))).into_response()
+}
+
+/// Live updates as server-sent events: the state whenever something the page shows changes (a
+/// frame, a fault, a history entry, a change made from a page; at most every 100 ms), and at
+/// least once a second (the registers a PLC writes, the heartbeat).
+async fn events(State(state): State<AppState>) -> Response {
+    use axum::response::sse::{Event, KeepAlive, Sse};
+    // Every camera shares the appliance's one change signal.
+    let rx = state.cameras.first().map(|c| c.changes.subscribe());
+    let stream = futures_util::stream::unfold((state, rx, true), |(state, mut rx, first)| async move {
+        if !first {
+            let wait = async {
+                match rx.as_mut() {
+                    Some(r) => {
+                        let _ = r.changed().await;
+                    }
+                    None => std::future::pending::<()>().await,
+                }
+            };
+            let _ = tokio::time::timeout(std::time::Duration::from_secs(1), wait).await;
+            // Changes in a burst (a frame, its history entry) make one update.
+            tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+            if let Some(r) = rx.as_mut() {
+                r.mark_unchanged();
+            }
+        }
+        let json = serde_json::to_string(&state_view(&state)).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"));
+        let event: Result<Event, std::convert::Infallible> = Ok(Event::default().event("state").data(json));
+        Some((event, (state, rx, false)))
+    });
+    Sse::new(stream).keep_alive(KeepAlive::default()).into_response()
 }
 
 async fn frame_jpg(State(state): State<AppState>, Path(unit): Path<u8>) -> Result<Response, Failure> {
@@ -634,6 +448,151 @@ async fn templates(State(state): State<AppState>, Path(unit): Path<u8>) -> Resul
 }
 
 #[derive(Deserialize)]
+struct HistoryQuery {
+    /// Only acquisitions with a reject or a fault.
+    #[serde(default)]
+    rejects: bool,
+}
+
+/// The kept acquisitions, newest first, each with its results and their measures.
+async fn history_list(State(state): State<AppState>, Path(unit): Path<u8>, Query(q): Query<HistoryQuery>) -> Result<Response, Failure> {
+    let cam = camera(&state, unit)?;
+    let entries = cam.history.as_ref().map(|h| h.entries()).unwrap_or_default();
+    let list: Vec<views::HistoryView> = entries
+        .iter()
+        .rev()
+        .filter(|e| !q.rejects || e.error.is_some() || e.results.iter().any(|r| !r.part.accepted))
+        .map(|e| history_view(e))
+        .collect();
+    Ok(([(header::CACHE_CONTROL, "no-store")], axum::Json(list)).into_response())
+}
+
+#[derive(Deserialize)]
+struct FrameQuery {
+    /// A part whose best-fit template outline is drawn too (PART_INDEX).
+    part: Option<usize>,
+    /// A thumbnail (160 px wide) instead of the kept picture's size.
+    #[serde(default)]
+    thumb: bool,
+}
+
+/// A kept acquisition's picture with its overlay (JPEG).
+async fn history_frame(
+    State(state): State<AppState>,
+    Path((unit, id)): Path<(u8, u64)>,
+    Query(q): Query<FrameQuery>,
+) -> Result<Response, Failure> {
+    let cam = camera(&state, unit)?;
+    let entry =
+        cam.history.as_ref().and_then(|h| h.get(id)).ok_or((StatusCode::NOT_FOUND, format!("acquisition {id} is no longer kept")))?;
+    let estimator = cam.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
+    let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, Failure> {
+        use opencv::prelude::*;
+        let internal = |e: String| (StatusCode::INTERNAL_SERVER_ERROR, e);
+        let picture = entry.picture.as_ref().ok_or((StatusCode::NOT_FOUND, "no frame came with this acquisition".to_string()))?;
+        let gray = picture.view().map_err(|e| internal(e.to_string()))?.as_mat().map_err(|e| internal(e.to_string()))?;
+        let img = match &entry.estimate {
+            Some(fe) => {
+                let templates: Vec<_> = estimator.templates().collect();
+                crate::overlay::annotate_gray(&gray, fe, &templates, entry.scale, q.part).map_err(|e| internal(e.to_string()))?
+            }
+            None => {
+                let mut bgr = opencv::core::Mat::default();
+                opencv::imgproc::cvt_color(&gray, &mut bgr, opencv::imgproc::COLOR_GRAY2BGR, 0).map_err(|e| internal(e.to_string()))?;
+                bgr
+            }
+        };
+        let img = if q.thumb {
+            let w = 160;
+            let h = (img.rows() * w / img.cols().max(1)).max(1);
+            let mut small = opencv::core::Mat::default();
+            opencv::imgproc::resize(&img, &mut small, opencv::core::Size::new(w, h), 0.0, 0.0, opencv::imgproc::INTER_AREA)
+                .map_err(|e| internal(e.to_string()))?;
+            small
+        } else {
+            img
+        };
+        crate::imageio::encode_mat(&img, ".jpg").map_err(internal)
+    })
+    .await
+    .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
+    Ok(([(header::CONTENT_TYPE, "image/jpeg"), (header::CACHE_CONTROL, "max-age=3600")], bytes).into_response())
+}
+
+#[derive(Deserialize)]
+struct ControlRequest {
+    /// trigger, ack, clear_error, online, expected_type or job.
+    action: String,
+    /// The value for online (0/1), expected_type (a TYPE_ID, 0: any) and job (its id).
+    value: Option<u16>,
+}
+
+/// A commissioning control, behind the token: each is the register write a PLC would make
+/// (the same checks, the same handshake), logged with the client's address.
+async fn control(
+    State(state): State<AppState>,
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    Path(unit): Path<u8>,
+    headers: HeaderMap,
+    axum::Json(req): axum::Json<ControlRequest>,
+) -> Result<Response, Failure> {
+    use map::{addr, status};
+    authorized(&state, &headers, peer, "a control")?;
+    let cam = camera(&state, unit)?;
+    let read = |a: u16| cam.handshake.lock().unwrap_or_else(|p| p.into_inner()).read(a, 1)[0];
+    let needs = |what: &str| req.value.ok_or((StatusCode::BAD_REQUEST, format!("{what} needs a value")));
+    let (register, value) = match req.action.as_str() {
+        "trigger" => {
+            let s = read(addr::STATUS);
+            if s & status::READY == 0 {
+                return Err((
+                    StatusCode::CONFLICT,
+                    format!("not READY (STATUS {s:08b}): online, not busy, camera OK and no error are needed"),
+                ));
+            }
+            (addr::TRIGGER, 1)
+        }
+        "ack" => match read(addr::RESULT_SEQ) {
+            0 => return Err((StatusCode::CONFLICT, "no result to acknowledge (RESULT_SEQ 0)".into())),
+            seq => (addr::RESULT_ACK, seq),
+        },
+        "clear_error" => (addr::CLEAR_ERROR, 1),
+        "online" => (addr::ONLINE, needs("online")?),
+        "expected_type" => (addr::EXPECTED_TYPE, needs("expected_type")?),
+        "job" => (addr::JOB_REQUEST, needs("job")?),
+        other => {
+            return Err((
+                StatusCode::BAD_REQUEST,
+                format!("unknown action {other:?}: trigger, ack, clear_error, online, expected_type or job"),
+            ));
+        }
+    };
+    cam.write_as_plc(register, value).map_err(control_failure)?;
+    let name = map::lookup(register).map_or("?", |r| r.name);
+    tracing::info!(camera = %cam.name, %peer, "operator view: {} ({name} = {value})", req.action);
+    if register == addr::TRIGGER {
+        // As a PLC does: TRIGGER back to 0 once the appliance acknowledged the edge.
+        let hs = cam.handshake.clone();
+        let cam_state = state.clone();
+        tokio::spawn(async move {
+            let until = tokio::time::Instant::now() + std::time::Duration::from_secs(5);
+            while tokio::time::Instant::now() < until {
+                if hs.lock().unwrap_or_else(|p| p.into_inner()).read(addr::STATUS, 1)[0] & status::TRIGGER_ACK != 0 {
+                    break;
+                }
+                tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+            }
+            if let Some(c) = cam_state.cameras.iter().find(|c| c.unit_id == unit)
+                && let Err(e) = c.write_as_plc(addr::TRIGGER, 0)
+            {
+                tracing::warn!(camera = %c.name, "operator view: TRIGGER not lowered: {e}");
+            }
+        });
+    }
+    Ok(axum::Json(serde_json::json!({ "action": req.action, "register": name, "value": value })).into_response())
+}
+
+#[derive(Deserialize)]
 struct JobRequest {
     id: u16,
 }
@@ -649,13 +608,7 @@ async fn change_job(
 ) -> Result<Response, Failure> {
     authorized(&state, &headers, peer, "a job change")?;
     let cam = camera(&state, unit)?;
-    cam.request_job(req.id).map_err(|e| {
-        let status = match e {
-            crate::appliance::JobRequestError::OutOfRange(_) => StatusCode::BAD_REQUEST,
-            crate::appliance::JobRequestError::Stopped => StatusCode::SERVICE_UNAVAILABLE,
-        };
-        (status, e.to_string())
-    })?;
+    cam.write_as_plc(map::addr::JOB_REQUEST, req.id).map_err(control_failure)?;
     tracing::info!(camera = %cam.name, %peer, "job {} requested from the operator view", req.id);
     Ok((StatusCode::ACCEPTED, axum::Json(serde_json::json!({ "requested": req.id }))).into_response())
 }
@@ -718,6 +671,17 @@ struct EnrollRequest {
     type_name: String,
     id: u16,
     face: String,
+    /// The ACQ_ID of the frame the part was chosen on (a newer frame refuses the request).
+    acq_id: Option<u16>,
+}
+
+/// A refused write is the client's mistake (400); a stopped worker is the appliance's (503).
+fn control_failure(e: crate::appliance::ControlError) -> Failure {
+    let status = match e {
+        crate::appliance::ControlError::Refused { .. } => StatusCode::BAD_REQUEST,
+        crate::appliance::ControlError::Stopped => StatusCode::SERVICE_UNAVAILABLE,
+    };
+    (status, e.to_string())
 }
 
 /// Whether `headers` carry the token for a change (`what`, for the log); a refusal is logged
@@ -749,8 +713,14 @@ async fn enroll(
     authorized(&state, &headers, peer, "an enrollment")?;
     let cam = camera(&state, unit)?;
     let face: Face = req.face.parse().map_err(|e: String| (StatusCode::BAD_REQUEST, e))?;
-    let request =
-        EnrolRequest { part: req.part, type_name: req.type_name.clone(), id: req.id, face, by: format!("operator view ({peer})") };
+    let request = EnrolRequest {
+        part: req.part,
+        type_name: req.type_name.clone(),
+        id: req.id,
+        face,
+        by: format!("operator view ({peer})"),
+        acq_id: req.acq_id,
+    };
     let done = cam.enrol(&request).map_err(|e| {
         let status = if e.is_request() {
             StatusCode::BAD_REQUEST

@@ -245,6 +245,45 @@ pub struct Lines {
     pub lambda: f64,
 }
 
+/// The limits a decision was held to: the estimator's parameters when it decided.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Limits {
+    /// Least outline fit that names a type.
+    pub min_fit: f64,
+    /// Most outline that may be foreign (extra) or unseen (missing).
+    pub max_foreign: f64,
+    /// Least support of a part found in a region of several.
+    pub min_support: f64,
+    /// Accepted scales.
+    pub scale_range: (f64, f64),
+    /// A rival within this of the best fit is compared by its line features ...
+    pub ambiguity_margin: f64,
+    /// ... which must be worse by at least this.
+    pub confidence_margin: f64,
+    /// Least confidence accepted.
+    pub accept_threshold: f64,
+}
+
+/// One measure behind a decision and the limit it was held to, as the operator's "why" panel
+/// shows it (the same numbers [`Decision`]'s text writes to the log).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Measure {
+    /// What was measured.
+    pub name: String,
+    /// Its value.
+    pub value: String,
+    /// What it had to be.
+    pub limit: String,
+    /// Whether it passed (None: shown for information, decides nothing by itself).
+    pub pass: Option<bool>,
+}
+
+impl Measure {
+    fn new(name: impl Into<String>, value: String, limit: String, pass: Option<bool>) -> Self {
+        Self { name: name.into(), value, limit, pass }
+    }
+}
+
 /// Everything measured about a part, as far as the estimator got.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Evidence {
@@ -256,6 +295,8 @@ pub struct Evidence {
     pub lines: Option<Lines>,
     /// The closest other type or face, when one came near.
     pub rival: Option<Rival>,
+    /// The limits in force, once a template was compared at all.
+    pub limits: Option<Limits>,
 }
 
 /// The verdict on a part and the evidence behind it.
@@ -272,6 +313,126 @@ impl Decision {
     pub fn new(verdict: Verdict, evidence: Evidence) -> Self {
         Self { verdict, evidence }
     }
+
+    /// Every measure the decision used, each with its limit and whether it passed, in the order
+    /// the estimator applies them; the verdict's own finding where no measure shows it.
+    pub fn measures(&self) -> Vec<Measure> {
+        let e = &self.evidence;
+        let mut m = Vec::new();
+        let f3 = |v: f64| format!("{v:.3}");
+        match &self.verdict {
+            Verdict::AtBorder { lo, hi } => m.push(Measure::new(
+                "outline clear of the frame's edge",
+                format!("x {:.0}..{:.0}, y {:.0}..{:.0} px", lo.x, hi.x, lo.y, hi.y),
+                "3 px from every edge".into(),
+                Some(false),
+            )),
+            Verdict::TooLarge { area } => {
+                m.push(Measure::new("region area", format!("{area:.0} px^2"), "at most an enrolled part's".into(), Some(false)))
+            }
+            _ => {}
+        }
+        if let (Some(o), Some(l)) = (&e.outline, &e.limits) {
+            m.push(Measure::new(format!("outline fit ({})", o.best), f3(o.fit), format!(">= {:.2}", l.min_fit), Some(o.fit >= l.min_fit)));
+            m.push(Measure::new(
+                "scale",
+                f3(o.scale),
+                format!("{:.2}..{:.2}", l.scale_range.0, l.scale_range.1),
+                Some(in_range(o.scale, l)),
+            ));
+            m.push(Measure::new(
+                "extra outline (other material)",
+                f3(o.extra),
+                format!("<= {:.3}", l.max_foreign),
+                Some(o.extra <= l.max_foreign),
+            ));
+            m.push(Measure::new(
+                "missing outline (hidden)",
+                f3(o.missing),
+                format!("<= {:.3}", l.max_foreign),
+                Some(o.missing <= l.max_foreign),
+            ));
+            m.push(Measure::new("outline rms", format!("{:.2} px", o.rms), format!("tolerance {:.2} px", o.tolerance), None));
+        }
+        if let (Some(r), Some(l)) = (&e.region, &e.limits) {
+            m.push(Measure::new(
+                format!("outline explained ({})", r.best),
+                f3(r.support),
+                format!(">= {:.2}", r.need),
+                Some(r.support >= r.need),
+            ));
+            m.push(Measure::new(
+                "scale",
+                f3(r.scale),
+                format!("{:.2}..{:.2}", l.scale_range.0, l.scale_range.1),
+                Some(in_range(r.scale, l)),
+            ));
+            m.push(Measure::new("on the region's outline", f3(r.coverage), "the rest from edges in the image".into(), None));
+        }
+        match &self.verdict {
+            Verdict::Covered { by } => {
+                m.push(Measure::new("lies on top", format!("no: {by} lies on it"), "nothing on it".into(), Some(false)))
+            }
+            Verdict::OrderUnclear => {
+                m.push(Measure::new("lies on top", "the image does not tell".into(), "nothing on it".into(), Some(false)))
+            }
+            Verdict::Unexplained { area } => m.push(Measure::new(
+                "material explained",
+                format!("{area:.0} px^2 left over"),
+                "every part-sized piece by a part".into(),
+                Some(false),
+            )),
+            _ => {}
+        }
+        if let (Some(r), Some(lines), Some(l)) = (&e.rival, &e.lines, &e.limits) {
+            m.push(Measure::new(
+                format!("rival {}: fit", r.name),
+                format!("{:.3} vs {:.3} at {:.2} px", r.fit, r.best, r.tolerance),
+                format!("within {:.2}: line features decide", l.ambiguity_margin),
+                None,
+            ));
+            let lead = lines.confidence - r.confidence;
+            m.push(Measure::new(
+                format!("confidence lead over {}", r.name),
+                f3(lead),
+                format!(">= {:.2}", l.confidence_margin),
+                Some(lead >= l.confidence_margin),
+            ));
+        }
+        if let (Some(lines), Some(l)) = (&e.lines, &e.limits) {
+            m.push(Measure::new(
+                "confidence (line features)",
+                f3(lines.confidence),
+                format!(">= {:.2}", l.accept_threshold),
+                Some(lines.confidence >= l.accept_threshold),
+            ));
+        }
+        if let Verdict::NoClearance { edge_px } = &self.verdict {
+            m.push(Measure::new(
+                "keep-out footprint clear",
+                format!("{edge_px} edge px of other material"),
+                "fewer than 3".into(),
+                Some(false),
+            ));
+        }
+        m
+    }
+
+    /// The runner-up: the next template on the separate-part path, or the rival in a region.
+    pub fn runner_up(&self) -> Option<String> {
+        let e = &self.evidence;
+        if let Some((n, fit)) = e.outline.as_ref().and_then(|o| o.next.first()) {
+            return Some(match fit {
+                NextFit::Fit(v) => format!("{n}: fit {v:.3}"),
+                NextFit::CorrRms(v) => format!("{n}: correlation distance {v:.4} (not registered)"),
+            });
+        }
+        e.rival.as_ref().map(|r| format!("{}: fit {:.3}, confidence {:.3}", r.name, r.fit, r.confidence))
+    }
+}
+
+fn in_range(scale: f64, l: &Limits) -> bool {
+    scale >= l.scale_range.0 && scale <= l.scale_range.1
 }
 
 impl fmt::Display for Decision {
@@ -317,6 +478,57 @@ mod tests {
 
     fn named() -> Named {
         Named { type_name: "bracket".into(), face: Face::Up }
+    }
+
+    fn limits() -> Limits {
+        Limits {
+            min_fit: 0.75,
+            max_foreign: 0.06,
+            min_support: 0.93,
+            scale_range: (0.85, 1.18),
+            ambiguity_margin: 0.1,
+            confidence_margin: 0.15,
+            accept_threshold: 0.5,
+        }
+    }
+
+    /// The why panel's measures: each with its limit and whether it passed, the failing one
+    /// the verdict's; the runner-up named.
+    #[test]
+    fn measures_say_which_limit_a_part_failed() {
+        let outline = OutlineFit {
+            best: named(),
+            fit: 0.97,
+            inliers: 0.98,
+            coverage: 0.97,
+            extra: 0.01,
+            missing: 0.02,
+            rms: 0.4,
+            tolerance: 3.0,
+            corr_rms: 0.01,
+            scale: 1.0,
+            next: vec![(Named { type_name: "bracket".into(), face: Face::Down }, NextFit::Fit(0.81))],
+        };
+        let lines = Lines { confidence: 0.42, noise: 2.0, contrast: 100.0, lambda: 24.9 };
+        let d = Decision::new(
+            Verdict::LowConfidence { confidence: 0.42, threshold: 0.5 },
+            Evidence { outline: Some(outline), lines: Some(lines), limits: Some(limits()), ..Evidence::default() },
+        );
+        let m = d.measures();
+        let failed: Vec<&str> = m.iter().filter(|m| m.pass == Some(false)).map(|m| m.name.as_str()).collect();
+        assert_eq!(failed, ["confidence (line features)"]);
+        let conf = m.iter().find(|m| m.name == "confidence (line features)").unwrap();
+        assert_eq!((conf.value.as_str(), conf.limit.as_str()), ("0.420", ">= 0.50"));
+        assert!(m.iter().any(|m| m.name == "outline fit (bracket up)" && m.pass == Some(true)));
+        assert_eq!(d.runner_up().as_deref(), Some("bracket down: fit 0.810"));
+        // A covered part in a region: the order is the failing measure.
+        let region = RegionFit { best: named(), support: 0.8, need: 0.93, coverage: 0.7, rms: 0.5, scale: 1.0 };
+        let covered = Decision::new(
+            Verdict::Covered { by: named() },
+            Evidence { region: Some(region), limits: Some(limits()), ..Evidence::default() },
+        );
+        let failed: Vec<String> = covered.measures().into_iter().filter(|m| m.pass == Some(false)).map(|m| m.name).collect();
+        assert_eq!(failed, ["outline explained (bracket up)", "lies on top"]);
     }
 
     #[test]

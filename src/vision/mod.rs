@@ -464,6 +464,20 @@ impl Estimator {
         self.params.min_segment_fraction * self.lib.entries.iter().map(|e| e.diag).fold(f64::INFINITY, f64::min)
     }
 
+    /// The limits its decisions are held to (recorded with each decision's evidence).
+    fn limits(&self) -> decide::Limits {
+        let p = &self.params;
+        decide::Limits {
+            min_fit: p.min_fit,
+            max_foreign: p.max_foreign,
+            min_support: p.min_support,
+            scale_range: p.scale_range,
+            ambiguity_margin: p.ambiguity_margin,
+            confidence_margin: p.confidence_margin,
+            accept_threshold: p.accept_threshold,
+        }
+    }
+
     /// The parameters in force.
     pub fn params(&self) -> &Params {
         &self.params
@@ -595,6 +609,7 @@ impl Estimator {
                     scale: pose.scale,
                 }),
                 lines: Some(decide::Lines { confidence: est.confidence, noise, contrast, lambda }),
+                limits: Some(self.limits()),
                 ..Evidence::default()
             };
             let verdict = if pose.scale < p.scale_range.0 || pose.scale > p.scale_range.1 {
@@ -730,6 +745,7 @@ impl Estimator {
                 scale: pose.scale,
                 next,
             }),
+            limits: Some(self.limits()),
             ..Evidence::default()
         };
         if est.fit < p.min_fit {
