@@ -104,6 +104,8 @@ pub struct CameraView {
     /// Acquisitions kept in the history, and not kept (the history thread was busy).
     history_kept: usize,
     history_dropped: u64,
+    /// An image archive is configured: older frames are on disk.
+    archive: bool,
 }
 
 /// A GenICam camera on the page.
@@ -299,6 +301,7 @@ pub fn camera_view(c: &CameraHandle) -> CameraView {
         templates_key,
         history_kept,
         history_dropped,
+        archive: c.archive.is_some(),
     }
 }
 
