@@ -103,14 +103,10 @@ pub async fn attach(running: &mut Running, cfg: &HttpConfig) -> Result<SocketAdd
 /// Nice value of the operator view's thread: under a flood of page requests the camera worker
 /// and the Modbus service (nice 0) get the CPU first (weights 1024 against 110 in Linux's
 /// scheduler), while an idle appliance still serves the page at once.
-pub const NICE: i32 = 10;
+pub const NICE: i32 = crate::appliance::VIEW_NICE;
 
 fn lower_priority() {
-    // SAFETY: plain system calls on the calling thread's own id; no memory is shared.
-    let rc = unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, NICE) };
-    if rc != 0 {
-        tracing::warn!("operator view keeps its priority: setpriority failed: {}", std::io::Error::last_os_error());
-    }
+    crate::appliance::lower_priority("operator view");
 }
 
 /// The accept loop: one connection per permit, each served by hyper with the header timeout;
