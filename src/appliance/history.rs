@@ -171,7 +171,7 @@ pub fn downscale(img: &GrayImage) -> Result<(GrayImage, f64), String> {
     let mut data = Vec::with_capacity(w * h);
     for y in 0..h {
         let row = &img.data[(f * y + mid) * img.width..][..img.width];
-        data.extend(row.chunks_exact(f).take(w).map(|b| ((b[mid] as u16 + b[(mid + 1).min(f - 1)] as u16 + 1) / 2) as u8));
+        data.extend(row.chunks_exact(f).take(w).map(|b| (b[mid] as u16 + b[(mid + 1).min(f - 1)] as u16).div_ceil(2) as u8));
     }
     Ok((GrayImage { data, width: w, height: h }, 1.0 / f as f64))
 }
