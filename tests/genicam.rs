@@ -71,6 +71,15 @@ fn config_sized(root: &Path, timeout_ms: u64, width: usize, height: usize) -> Co
     Config::from_toml(&text, &root.join("appliance.toml")).unwrap()
 }
 
+/// Waits (10 s at most, else `why`) until ACQ_COUNT reaches 10 without a TRIGGER.
+async fn ten_acquisitions(ctx: &mut tokio_modbus::client::Context, why: &str) {
+    let until = Instant::now() + Duration::from_secs(10);
+    while read(ctx, addr::ACQ_COUNT, 1).await[0] < 10 {
+        assert!(Instant::now() < until, "{why}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
 fn percentile(v: &mut [f64], q: f64) -> f64 {
     v.sort_by(f64::total_cmp);
     v[((v.len() as f64 * q).ceil() as usize).clamp(1, v.len()) - 1]
@@ -189,11 +198,7 @@ async fn a_free_running_gige_camera_streams_and_each_acquisition_is_one_of_its_f
     let running = start(&cfg).await;
     let mut ctx = plc(running.modbus_addr, 1).await;
     wait_status(&mut ctx, |s| s & status::CAMERA_OK != 0, Duration::from_secs(15)).await;
-    let until = Instant::now() + Duration::from_secs(10);
-    while read(&mut ctx, addr::ACQ_COUNT, 1).await[0] < 10 {
-        assert!(Instant::now() < until, "free-run acquisitions did not come");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    ten_acquisitions(&mut ctx, "free-run acquisitions did not come").await;
     let stats = running.cameras[0].genicam.clone().unwrap();
     let acq = read(&mut ctx, addr::ACQ_COUNT, 1).await[0] as u64;
     let (received, dropped) = (stats.received.load(Ordering::Relaxed), stats.dropped.load(Ordering::Relaxed));
@@ -250,11 +255,7 @@ async fn a_line_triggered_gige_camera_makes_every_frame_it_sends_an_acquisition(
     assert_eq!(info.trigger, "On, Line0", "the camera reports the line trigger the settings asked for");
 
     // No TRIGGER written: the camera's frames are the acquisitions, every one of them.
-    let until = Instant::now() + Duration::from_secs(10);
-    while read(&mut ctx, addr::ACQ_COUNT, 1).await[0] < 10 {
-        assert!(Instant::now() < until, "line-triggered frames did not become acquisitions");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    ten_acquisitions(&mut ctx, "line-triggered frames did not become acquisitions").await;
     let acq = read(&mut ctx, addr::ACQ_COUNT, 1).await[0] as u64;
     let (received, dropped) = (stats.received.load(Ordering::Relaxed), stats.dropped.load(Ordering::Relaxed));
     assert_eq!(dropped, 0, "with a hardware trigger no frame is dropped as older than the newest");
