@@ -324,8 +324,8 @@ pub const MAP: &[Register] = &[
     coded(
         addr::JOB_STATUS,
         "JOB_STATUS",
-        &[(0, "idle (no request yet)"), (1, "changing"), (2, "done"), (3, "failed")],
-        "While changing, READY is 0, triggers count as missed and queued results stay readable. Failed: the id is not configured or its knowledge base does not load; the job in force stays, and the reason is logged and shown on the operator view. Done and failed hold until the next request. A job with an expected_type writes it into EXPECTED_TYPE when it comes into force; the PLC may overwrite it afterwards.",
+        &[(0, "idle"), (1, "changing"), (2, "done"), (3, "failed")],
+        "Idle: no request yet. While changing, READY is 0, triggers count as missed and queued results stay readable. Failed: the id is not configured or its knowledge base does not load; the job in force stays, and the reason is logged and shown on the operator view. Done and failed hold until the next request. A job with an expected_type writes it into EXPECTED_TYPE when it comes into force; the PLC may overwrite it afterwards.",
     ),
     reg(
         addr::BOOT_ID,
