@@ -1,8 +1,14 @@
-//! Pixel to robot-frame millimetres: a homography fitted to point pairs, or a plain scale.
+//! Pixel to robot-frame millimetres: a plate calibration (lens and plane, from `calibrate`)
+//! placed in the robot frame by touched-up points, a homography fitted to point pairs, or a
+//! plain scale.
 
-use nalgebra::{DMatrix, Matrix3, Vector3};
+use std::path::{Path, PathBuf};
+
+use nalgebra::{DMatrix, Matrix3, Vector2, Vector3};
 
 use crate::config::CalibrationConfig;
+use crate::lens::{Lens, PlaneCamera, Similarity};
+use crate::vision::Pt;
 
 /// A fitted mapping from frame pixels to robot millimetres.
 #[derive(Debug, Clone, PartialEq)]
@@ -20,6 +26,139 @@ pub enum Calibration {
         /// Largest residual over the touched-up points, mm.
         max_mm: f64,
     },
+    /// A plate calibration's lens and plane, then the plate-to-robot similarity fitted to
+    /// touched-up points.
+    Plate(Box<PlateCalibration>),
+}
+
+/// A plate calibration in force: [`PlateFile`]'s camera placed in the robot frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlateCalibration {
+    /// Where it came from.
+    pub file: PathBuf,
+    /// The plate file as read.
+    pub plate: PlateFile,
+    /// Pixels to plate millimetres.
+    pub camera: PlaneCamera,
+    /// Plate millimetres to robot millimetres.
+    pub robot: Similarity,
+    /// Each touched-up point's distance from where the fit puts it, mm, in the configured order.
+    pub residuals_mm: Vec<f64>,
+}
+
+/// The file `lfi-bridge calibrate` writes: a camera model of the belt plane, versioned like the
+/// knowledge base. Human-readable so a commissioning engineer can see k1 and the residuals.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlateFile {
+    /// Always "lfi-bridge plate calibration".
+    pub format: String,
+    /// [`PLATE_FILE_VERSION`].
+    pub version: u32,
+    /// Frame width the calibration was made on, pixels; frames of another size are refused.
+    pub width: usize,
+    /// Frame height, pixels.
+    pub height: usize,
+    /// The lens (coordinates normalised by `radius_px` about `centre_px`).
+    pub lens: Lens,
+    /// Plate millimetres to undistorted normalised coordinates, row-major.
+    pub plane: [[f64; 3]; 3],
+    /// The plate.
+    pub grid: PlateGrid,
+    /// How well the model fits the plate.
+    pub fit: PlateFitRecord,
+}
+
+/// The plate a calibration was made with.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlateGrid {
+    /// circles, asymmetric-circles or chessboard.
+    pub kind: String,
+    /// Points per row.
+    pub cols: usize,
+    /// Rows.
+    pub rows: usize,
+    /// Pitch, mm.
+    pub pitch_mm: f64,
+}
+
+/// The fit's figures, as `calibrate` printed them.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlateFitRecord {
+    /// The images given, in order.
+    pub images: Vec<String>,
+    /// How many had the grid found.
+    pub images_used: usize,
+    /// Grid points fitted.
+    pub points: usize,
+    /// Reprojection RMS, pixels.
+    pub rms_px: f64,
+    /// Median distance of a found point, mapped to the plate, from its true place, mm.
+    pub residual_mm_median: f64,
+    /// Largest such distance, mm.
+    pub residual_mm_max: f64,
+}
+
+/// The plate file format this build writes and reads.
+pub const PLATE_FILE_VERSION: u32 = 1;
+const PLATE_FILE_FORMAT: &str = "lfi-bridge plate calibration";
+
+impl PlateFile {
+    /// The camera it describes.
+    pub fn camera(&self) -> Option<PlaneCamera> {
+        let p = self.plane;
+        PlaneCamera::new(self.lens, Matrix3::new(p[0][0], p[0][1], p[0][2], p[1][0], p[1][1], p[1][2], p[2][0], p[2][1], p[2][2]))
+    }
+
+    /// Reads and checks a plate file.
+    pub fn load(path: &Path) -> Result<Self, CalibrationError> {
+        let bad = |message: String| CalibrationError::File { path: path.to_path_buf(), message };
+        let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
+        let f: PlateFile = toml::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        if f.format != PLATE_FILE_FORMAT {
+            return Err(bad(format!("format {:?} is not {PLATE_FILE_FORMAT:?}", f.format)));
+        }
+        if f.version != PLATE_FILE_VERSION {
+            return Err(bad(format!("version {} is not supported (this build reads version {PLATE_FILE_VERSION})", f.version)));
+        }
+        let l = f.lens;
+        let numbers = [l.centre_px[0], l.centre_px[1], l.radius_px, l.k1, l.k2, l.p1, l.p2];
+        if numbers.iter().chain(f.plane.iter().flatten()).any(|v| !v.is_finite()) || l.radius_px <= 0.0 {
+            return Err(bad("the lens or plane holds a number that is not finite (or a radius <= 0)".into()));
+        }
+        if f.width < 32 || f.height < 32 {
+            return Err(bad(format!("frame size {} x {} is too small", f.width, f.height)));
+        }
+        if f.camera().is_none() {
+            return Err(bad("the plane map is singular".into()));
+        }
+        Ok(f)
+    }
+
+    /// Writes it as TOML, with a header saying what it is.
+    pub fn to_toml(&self) -> Result<String, toml::ser::Error> {
+        Ok(format!(
+            "# Written by `lfi-bridge calibrate`: the camera's lens and the belt plane, from a grid plate.\n# Pixels: OpenCV's convention (pixel centres at integer coordinates).\n{}",
+            toml::to_string(self)?
+        ))
+    }
+
+    /// A plate file for a fitted camera.
+    pub fn new(camera: &PlaneCamera, width: usize, height: usize, grid: PlateGrid, fit: PlateFitRecord) -> Self {
+        let h = camera.plane;
+        PlateFile {
+            format: PLATE_FILE_FORMAT.into(),
+            version: PLATE_FILE_VERSION,
+            width,
+            height,
+            lens: camera.lens,
+            plane: [[h[(0, 0)], h[(0, 1)], h[(0, 2)]], [h[(1, 0)], h[(1, 1)], h[(1, 2)]], [h[(2, 0)], h[(2, 1)], h[(2, 2)]]],
+            grid,
+            fit,
+        }
+    }
 }
 
 /// Why a calibration cannot be made from the configured points.
@@ -31,6 +170,50 @@ pub enum CalibrationError {
     /// No homography fits the points.
     #[error("calibration points are degenerate (three or more on a line, or repeated): no homography fits")]
     Degenerate,
+    /// The plate file cannot be used.
+    #[error("calibration file {}: {message}", path.display())]
+    File {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        message: String,
+    },
+    /// Fewer than three touched-up points for a plate calibration.
+    #[error("a plate calibration needs at least 3 touched-up points (calibration.points), got {0}")]
+    TooFewTouchUps(usize),
+    /// The touched-up points lie on a line (or on top of each other).
+    #[error("calibration.points lie on a line or on top of each other: they do not fix the robot frame (spread them over the field)")]
+    Collinear,
+    /// A touched-up point lies outside the lens model's reach.
+    #[error("calibration.points[{index}] at ({x_px}, {y_px}) px is outside the frame the plate calibration covers")]
+    OutsideModel {
+        /// Its index in `calibration.points`.
+        index: usize,
+        /// Its pixel x.
+        x_px: f64,
+        /// Its pixel y.
+        y_px: f64,
+    },
+    /// One touched-up point disagrees with the others.
+    #[error(
+        "calibration.points[{index}] ({x_px}, {y_px}) px -> ({x_mm}, {y_mm}) mm is {off_mm:.3} mm from where the other points put it (limit max_point_error_mm = {limit_mm}): touch it up again or remove it"
+    )]
+    PointDisagrees {
+        /// Its index in `calibration.points`.
+        index: usize,
+        /// Its pixel x.
+        x_px: f64,
+        /// Its pixel y.
+        y_px: f64,
+        /// Its robot x.
+        x_mm: f64,
+        /// Its robot y.
+        y_mm: f64,
+        /// How far off it is, mm.
+        off_mm: f64,
+        /// The configured limit, mm.
+        limit_mm: f64,
+    },
 }
 
 impl Calibration {
@@ -39,6 +222,34 @@ impl Calibration {
         match c {
             CalibrationConfig::Scale { mm_per_px } => Ok(Calibration::Scale(*mm_per_px)),
             CalibrationConfig::Points(p) => fit(p),
+            CalibrationConfig::Plate { file, points, scaled, max_point_error_mm } => {
+                let plate = PlateFile::load(file)?;
+                let camera = plate
+                    .camera()
+                    .ok_or_else(|| CalibrationError::File { path: file.clone(), message: "the plane map is singular".into() })?;
+                let (robot, residuals_mm) = place_in_robot_frame(&camera, points, *scaled, *max_point_error_mm)?;
+                Ok(Calibration::Plate(Box::new(PlateCalibration { file: file.clone(), plate, camera, robot, residuals_mm })))
+            }
+        }
+    }
+
+    /// The frame size this calibration holds for (a plate calibration's; None: any).
+    pub fn frame_size(&self) -> Option<(usize, usize)> {
+        match self {
+            Calibration::Plate(p) => Some((p.plate.width, p.plate.height)),
+            _ => None,
+        }
+    }
+
+    /// Pixels to robot millimetres (None outside the lens model's reach).
+    pub fn to_robot(&self, x: f64, y: f64) -> Option<(f64, f64)> {
+        match self {
+            Calibration::Scale(s) => Some((x * s, y * s)),
+            Calibration::Homography { h, .. } => Some(project(h, x, y)),
+            Calibration::Plate(p) => p.camera.to_plane(Vector2::new(x, y)).map(|m| {
+                let r = p.robot.apply(m);
+                (r.x, r.y)
+            }),
         }
     }
 
@@ -46,16 +257,65 @@ impl Calibration {
     pub fn apply(&self, x: f64, y: f64, angle_deg: f64) -> (f64, f64, f64) {
         match self {
             Calibration::Scale(s) => (x * s, y * s, angle_deg),
-            Calibration::Homography { h, .. } => {
-                let (mx, my) = project(h, x, y);
-                // Direction of the part's axis in the image (y down), mapped by the local Jacobian.
+            Calibration::Homography { .. } | Calibration::Plate(_) => {
+                let Some((mx, my)) = self.to_robot(x, y) else { return (f64::NAN, f64::NAN, f64::NAN) };
+                // Direction of the part's axis in the image (y down), mapped by the local
+                // Jacobian (central differences half a pixel either side).
                 let a = angle_deg.to_radians();
-                let (dx, dy) = (a.cos(), -a.sin());
-                let e = 1e-3;
-                let (px, py) = project(h, x + dx * e, y + dy * e);
-                (mx, my, (py - my).atan2(px - mx).to_degrees())
+                let (dx, dy) = (a.cos() * 0.5, -a.sin() * 0.5);
+                match (self.to_robot(x - dx, y - dy), self.to_robot(x + dx, y + dy)) {
+                    (Some(p0), Some(p1)) => (mx, my, (p1.1 - p0.1).atan2(p1.0 - p0.0).to_degrees()),
+                    _ => (mx, my, f64::NAN),
+                }
             }
         }
+    }
+
+    /// Robot millimetres to a pixel (None where the mapping cannot be inverted there): what the
+    /// operator view's grid of robot coordinates is drawn with.
+    pub fn to_pixel(&self, x_mm: f64, y_mm: f64) -> Option<(f64, f64)> {
+        match self {
+            Calibration::Scale(s) => Some((x_mm / s, y_mm / s)),
+            Calibration::Homography { h, .. } => {
+                let (x, y) = project(&h.try_inverse()?, x_mm, y_mm);
+                (x.is_finite() && y.is_finite()).then_some((x, y))
+            }
+            Calibration::Plate(p) => {
+                let plate = p.robot.invert(Vector2::new(x_mm, y_mm));
+                let px = p.camera.to_pixel(plate);
+                (px.x.is_finite() && px.y.is_finite()).then_some((px.x, px.y))
+            }
+        }
+    }
+
+    /// Maps a part's pose: its position, its image angle, and its outline as the estimate placed
+    /// the template (frame pixels). Where the mapping is not a plain scale (a lens, a tilt), a
+    /// part's image is not its template moved rigidly: it is stretched by up to a few percent,
+    /// differently along and across the radius, and the estimator's rigid fit of the template
+    /// then misplaces the template's origin by that stretch times the origin's offset from the
+    /// outline's middle (0.8 px at the cell's corners, 0.15 mm). Mapping the placed outline
+    /// through the calibration and fitting one similarity to it cancels that to first order:
+    /// the similarity's stretch-free part is the part's true rigid pose in the robot frame.
+    pub fn apply_part(&self, x: f64, y: f64, angle_deg: f64, outline: &[Pt]) -> (f64, f64, f64) {
+        if matches!(self, Calibration::Scale(_)) || outline.len() < 8 {
+            return self.apply(x, y, angle_deg);
+        }
+        let step = outline.len().div_ceil(256);
+        let (px, mm): (Vec<Vector2<f64>>, Vec<Vector2<f64>>) = outline
+            .iter()
+            .step_by(step)
+            .filter_map(|p| self.to_robot(p.x, p.y).map(|(u, v)| (Vector2::new(p.x, p.y), Vector2::new(u, v))))
+            .unzip();
+        if px.len() < 8 {
+            return self.apply(x, y, angle_deg);
+        }
+        let plain = crate::lens::similarity(&px, &mm, true, false);
+        let mirrored = crate::lens::similarity(&px, &mm, true, true);
+        let f = if mirrored.rms < plain.rms { mirrored } else { plain };
+        let at = f.apply(Vector2::new(x, y));
+        let a = angle_deg.to_radians();
+        let ahead = f.apply(Vector2::new(x + a.cos(), y - a.sin()));
+        (at.x, at.y, (ahead.y - at.y).atan2(ahead.x - at.x).to_degrees())
     }
 
     /// One line for the start-up log.
@@ -63,8 +323,103 @@ impl Calibration {
         match self {
             Calibration::Scale(s) => format!("scale {s} mm/px (no homography: robot frame = image frame scaled)"),
             Calibration::Homography { rms_mm, max_mm, .. } => format!("homography, fit residual RMS {rms_mm:.3} mm, max {max_mm:.3} mm"),
+            Calibration::Plate(p) => {
+                let f = &p.plate.fit;
+                let r = &p.robot;
+                let per_point: Vec<String> = p.residuals_mm.iter().enumerate().map(|(i, e)| format!("[{i}] {e:.3}")).collect();
+                format!(
+                    "plate {} ({} {}x{}, pitch {} mm; k1 {:.5}, k2 {:.5}; reprojection RMS {:.3} px, plate residual max {:.3} mm); robot frame: {} fitted to {} points ({}), {}, turned {:.2} deg, RMS {:.3} mm; residual mm per point: {}",
+                    p.file.display(),
+                    p.plate.grid.kind,
+                    p.plate.grid.cols,
+                    p.plate.grid.rows,
+                    p.plate.grid.pitch_mm,
+                    p.plate.lens.k1,
+                    p.plate.lens.k2,
+                    f.rms_px,
+                    f.residual_mm_max,
+                    if r.scale == 1.0 { "rigid" } else { "similarity" },
+                    p.residuals_mm.len(),
+                    if r.scale == 1.0 { "scale fixed at 1".to_string() } else { format!("scale {:.5}", r.scale) },
+                    if r.mirrored {
+                        "mirrored (the robot sees the belt from the other side: its hand differs from the image's)"
+                    } else {
+                        "not mirrored"
+                    },
+                    r.angle.to_degrees(),
+                    r.rms,
+                    per_point.join(", ")
+                )
+            }
         }
     }
+}
+
+/// The similarity (or rigid map) from plate millimetres to robot millimetres that best fits the
+/// touched-up points, with the hand (mirrored or not) that fits them better: an overhead camera
+/// and a Z-up robot see the belt mirrored, a camera looking up at a robot does not, and the
+/// points tell which without a setting to get wrong. Scaled by default: a plate a few mm thick
+/// lies closer to the camera than the belt, so its millimetres look a fraction of a percent
+/// larger (3 mm at 1 m: 0.3 %, 0.6 mm across 200 mm), which the scale takes up.
+pub fn place_in_robot_frame(
+    camera: &PlaneCamera,
+    points: &[[f64; 4]],
+    scaled: bool,
+    limit_mm: f64,
+) -> Result<(Similarity, Vec<f64>), CalibrationError> {
+    if points.len() < 3 {
+        return Err(CalibrationError::TooFewTouchUps(points.len()));
+    }
+    let mut plate = Vec::with_capacity(points.len());
+    for (index, p) in points.iter().enumerate() {
+        let m = camera.to_plane(Vector2::new(p[0], p[1])).ok_or(CalibrationError::OutsideModel { index, x_px: p[0], y_px: p[1] })?;
+        plate.push(m);
+    }
+    let robot: Vec<Vector2<f64>> = points.iter().map(|p| Vector2::new(p[2], p[3])).collect();
+    // Points on a line fix neither the hand nor the turn: the smaller spread must be real.
+    let spread = |v: &[Vector2<f64>]| {
+        let n = v.len() as f64;
+        let m = v.iter().fold(Vector2::zeros(), |a, p| a + p) / n;
+        let (mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0);
+        for p in v {
+            let d = p - m;
+            sxx += d.x * d.x / n;
+            syy += d.y * d.y / n;
+            sxy += d.x * d.y / n;
+        }
+        let t = 0.5 * (sxx + syy);
+        let q = (0.25 * (sxx - syy).powi(2) + sxy * sxy).sqrt();
+        ((t - q).max(0.0).sqrt(), (t + q).sqrt())
+    };
+    let (minor, major) = spread(&plate);
+    if !(major > 1.0 && minor > 0.05 * major) {
+        return Err(CalibrationError::Collinear);
+    }
+    let fit = |a: &[Vector2<f64>], b: &[Vector2<f64>]| {
+        let s = crate::lens::similarity(a, b, scaled, false);
+        let m = crate::lens::similarity(a, b, scaled, true);
+        if m.rms < s.rms { m } else { s }
+    };
+    let best = fit(&plate, &robot);
+    let residuals: Vec<f64> = plate.iter().zip(&robot).map(|(p, r)| (best.apply(*p) - r).norm()).collect();
+    if residuals.iter().any(|&e| e > limit_mm) {
+        // Name the point the others disagree with most: each left out in turn and predicted by
+        // the rest (with three points a bad one drags the fit towards itself, so the fit's own
+        // residual would blame a good neighbour as often).
+        let held_out = |i: usize| {
+            let (a, b): (Vec<_>, Vec<_>) =
+                plate.iter().zip(&robot).enumerate().filter(|(j, _)| *j != i).map(|(_, (p, r))| (*p, *r)).unzip();
+            (fit(&a, &b).apply(plate[i]) - robot[i]).norm()
+        };
+        let (index, off_mm) = if points.len() >= 4 {
+            (0..points.len()).map(|i| (i, held_out(i))).max_by(|a, b| a.1.total_cmp(&b.1)).unwrap_or((0, 0.0))
+        } else {
+            residuals.iter().copied().enumerate().max_by(|a, b| a.1.total_cmp(&b.1)).unwrap_or((0, 0.0))
+        };
+        let p = points[index];
+        return Err(CalibrationError::PointDisagrees { index, x_px: p[0], y_px: p[1], x_mm: p[2], y_mm: p[3], off_mm, limit_mm });
+    }
+    Ok((best, residuals))
 }
 
 fn project(h: &Matrix3<f64>, x: f64, y: f64) -> (f64, f64) {

@@ -252,6 +252,7 @@ mod raw {
         pub noise: Option<f64>,
         pub scenes: Option<i64>,
         pub interval_ms: Option<i64>,
+        pub cell: Option<bool>,
         // dir
         pub path: Option<String>,
         pub settle_ms: Option<i64>,
@@ -271,6 +272,9 @@ mod raw {
     #[serde(deny_unknown_fields)]
     pub struct Calibration {
         pub points: Vec<Vec<f64>>,
+        pub file: Option<String>,
+        pub fit: Option<String>,
+        pub max_point_error_mm: Option<f64>,
     }
 
     #[derive(Debug, Deserialize)]
@@ -361,6 +365,8 @@ pub enum SourceConfig {
         scenes: usize,
         /// Least time between frames in free-run (a real camera's frame rate).
         interval: Duration,
+        /// Frames through the simulator's cell camera (tilt, lens distortion; `simulate --cell`).
+        cell: bool,
     },
     /// Image files dropped into a folder by the camera's own software.
     Dir {
@@ -403,6 +409,18 @@ pub enum CalibrationConfig {
     },
     /// A homography fitted to touched-up `[x_px, y_px, x_mm, y_mm]` pairs (four or more): tilt.
     Points(Vec<[f64; 4]>),
+    /// A plate calibration file (`lfi-bridge calibrate`: lens and plane) placed in the robot
+    /// frame by three or more touched-up pairs.
+    Plate {
+        /// The plate file (resolved against the configuration's folder).
+        file: PathBuf,
+        /// Touched-up `[x_px, y_px, x_mm, y_mm]` pairs.
+        points: Vec<[f64; 4]>,
+        /// A similarity (`fit = "similarity"`, the default) or a rigid map (`"rigid"`).
+        scaled: bool,
+        /// A point farther than this from where the others put it refuses the start-up, mm.
+        max_point_error_mm: f64,
+    },
 }
 
 /// Where a job's templates come from.
@@ -698,7 +716,8 @@ fn camera_of(c: &Check<'_>, i: usize, rc: &raw::Camera, base: &Path, accept_thre
     let trigger = if matches!(&source, SourceConfig::Genicam(g) if g.hardware_trigger.is_some()) { Trigger::FreeRun } else { rc.trigger };
     let kb = kb_source(c, &k, rc.kb.as_deref(), rc.kb_from_simulator, &source, base)?;
     let roi = roi_of(c, &k, rc.roi.as_deref(), &source)?;
-    let calibration = calibration_of(c, &k, rc.calibration.as_ref(), rc.mm_per_px)?.unwrap_or(CalibrationConfig::Scale { mm_per_px: 1.0 });
+    let calibration =
+        calibration_of(c, &k, rc.calibration.as_ref(), rc.mm_per_px, base)?.unwrap_or(CalibrationConfig::Scale { mm_per_px: 1.0 });
     let jobs = jobs_of(c, &k, rc, &source, base, JobDefaults { kb, accept_threshold, roi, calibration })?;
     let start_job = match rc.start_job {
         Some(v) => {
@@ -752,6 +771,7 @@ fn source_of(c: &Check<'_>, k: &dyn Fn(&str) -> String, s: &raw::Source, base: &
             ("noise", s.noise.is_some()),
             ("scenes", s.scenes.is_some()),
             ("interval_ms", s.interval_ms.is_some()),
+            ("cell", s.cell.is_some()),
             ("path", s.path.is_some()),
             ("settle_ms", s.settle_ms.is_some()),
             ("timeout_ms", s.timeout_ms.is_some()),
@@ -772,7 +792,7 @@ fn source_of(c: &Check<'_>, k: &dyn Fn(&str) -> String, s: &raw::Source, base: &
     };
     Ok(match s.kind.as_str() {
         "sim" => {
-            only(&["seed", "width", "height", "noise", "scenes", "interval_ms"])?;
+            only(&["seed", "width", "height", "noise", "scenes", "interval_ms", "cell"])?;
             SourceConfig::Sim {
                 seed: c.int(&k("source.seed"), s.seed.unwrap_or(1), 0, i64::MAX)?,
                 width: c.int(&k("source.width"), s.width.unwrap_or(2592), 320, 8192)?,
@@ -780,6 +800,7 @@ fn source_of(c: &Check<'_>, k: &dyn Fn(&str) -> String, s: &raw::Source, base: &
                 noise: s.noise.map(|n| c.real(&k("source.noise"), n, 0.0, 100.0)).transpose()?,
                 scenes: c.int(&k("source.scenes"), s.scenes.unwrap_or(8), 1, 256)?,
                 interval: Duration::from_millis(c.int(&k("source.interval_ms"), s.interval_ms.unwrap_or(500), 0, 3_600_000)?),
+                cell: s.cell.unwrap_or(false),
             }
         }
         "dir" => {
@@ -879,7 +900,7 @@ fn jobs_of(
                 .transpose()?
                 .unwrap_or(own.accept_threshold),
             roi: roi_of(c, &jk, rj.roi.as_deref(), source)?.or(own.roi),
-            calibration: calibration_of(c, &jk, rj.calibration.as_ref(), rj.mm_per_px)?.unwrap_or_else(|| own.calibration.clone()),
+            calibration: calibration_of(c, &jk, rj.calibration.as_ref(), rj.mm_per_px, base)?.unwrap_or_else(|| own.calibration.clone()),
         });
     }
     if jobs.is_empty() {
@@ -949,22 +970,26 @@ fn roi_of(c: &Check<'_>, k: &dyn Fn(&str) -> String, v: Option<&[i64]>, source: 
     Ok(Some(roi))
 }
 
-/// `mm_per_px` or a `calibration` table of point pairs; None when neither is given.
+/// `mm_per_px` or a `calibration` table (point pairs, with or without a plate file); None when
+/// neither is given.
 fn calibration_of(
     c: &Check<'_>,
     k: &dyn Fn(&str) -> String,
     cal: Option<&raw::Calibration>,
     mm_per_px: Option<f64>,
+    base: &Path,
 ) -> Result<Option<CalibrationConfig>, ConfigError> {
     Ok(match (cal, mm_per_px) {
         (Some(_), Some(v)) => return Err(c.err(k("mm_per_px"), v, format!("cannot be combined with [{}]", k("calibration")))),
         (Some(cal), None) => {
-            if cal.points.len() < 4 {
-                return Err(c.err(
-                    k("calibration.points"),
-                    format!("{} pairs", cal.points.len()),
-                    "needs at least 4 [x_px, y_px, x_mm, y_mm] pairs",
-                ));
+            let least = if cal.file.is_some() { 3 } else { 4 };
+            if cal.points.len() < least {
+                let what = if cal.file.is_some() {
+                    "needs at least 3 [x_px, y_px, x_mm, y_mm] pairs touched up with the robot to place the plate calibration in the robot frame"
+                } else {
+                    "needs at least 4 [x_px, y_px, x_mm, y_mm] pairs"
+                };
+                return Err(c.err(k("calibration.points"), format!("{} pairs", cal.points.len()), what));
             }
             let mut pts = Vec::new();
             for (j, p) in cal.points.iter().enumerate() {
@@ -973,7 +998,35 @@ fn calibration_of(
                 }
                 pts.push([p[0], p[1], p[2], p[3]]);
             }
-            Some(CalibrationConfig::Points(pts))
+            match &cal.file {
+                None => {
+                    if let Some(f) = &cal.fit {
+                        return Err(c.err(
+                            k("calibration.fit"),
+                            format!("{f:?}"),
+                            "only applies with calibration.file (a plate calibration)",
+                        ));
+                    }
+                    if let Some(v) = cal.max_point_error_mm {
+                        return Err(c.err(
+                            k("calibration.max_point_error_mm"),
+                            v,
+                            "only applies with calibration.file (a plate calibration)",
+                        ));
+                    }
+                    Some(CalibrationConfig::Points(pts))
+                }
+                Some(file) => {
+                    let scaled = match cal.fit.as_deref().unwrap_or("similarity") {
+                        "similarity" => true,
+                        "rigid" => false,
+                        other => return Err(c.err(k("calibration.fit"), format!("{other:?}"), "must be \"similarity\" or \"rigid\"")),
+                    };
+                    let max_point_error_mm =
+                        c.real(&k("calibration.max_point_error_mm"), cal.max_point_error_mm.unwrap_or(0.5), 0.001, 100.0)?;
+                    Some(CalibrationConfig::Plate { file: base.join(file), points: pts, scaled, max_point_error_mm })
+                }
+            }
         }
         (None, Some(s)) => Some(CalibrationConfig::Scale { mm_per_px: c.real(&k("mm_per_px"), s, 1e-6, 1e6)? }),
         (None, None) => None,
@@ -1008,6 +1061,31 @@ mod tests {
 
     fn err(text: &str) -> String {
         Config::from_toml(text, Path::new("/etc/lfi/x.toml")).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn a_plate_calibration_takes_its_file_beside_the_config_and_three_touch_ups() {
+        let pts = "points = [[0, 0, 0, 0], [100, 0, 10, 0], [0, 100, 0, 10]]\n";
+        let text = format!("{MIN}[camera.calibration]\nfile = \"cal/plate.toml\"\n{pts}fit = \"rigid\"\nmax_point_error_mm = 0.2\n");
+        let c = Config::from_toml(&text, Path::new("/etc/lfi/x.toml")).unwrap();
+        match &c.cameras[0].jobs[0].calibration {
+            CalibrationConfig::Plate { file, points, scaled, max_point_error_mm } => {
+                assert_eq!(file, Path::new("/etc/lfi/cal/plate.toml"));
+                assert_eq!((points.len(), *scaled, *max_point_error_mm), (3, false, 0.2));
+            }
+            other => panic!("{other:?}"),
+        }
+        let e = err(&format!("{MIN}[camera.calibration]\nfile = \"p.toml\"\n{pts}fit = \"affine\"\n"));
+        assert!(e.contains("calibration.fit") && e.contains("affine"), "{e}");
+        let e = err(&format!("{MIN}[camera.calibration]\nfile = \"p.toml\"\npoints = [[0, 0, 0, 0]]\n"));
+        assert!(e.contains("at least 3"), "{e}");
+        let e = err(&format!("{MIN}[camera.calibration]\n{pts}fit = \"rigid\"\n"));
+        assert!(e.contains("at least 4"), "a homography still needs four: {e}");
+        let four = "points = [[0, 0, 0, 0], [100, 0, 10, 0], [0, 100, 0, 10], [100, 100, 10, 10]]\n";
+        let e = err(&format!("{MIN}[camera.calibration]\n{four}fit = \"rigid\"\n"));
+        assert!(e.contains("only applies with calibration.file"), "{e}");
+        let e = err(&format!("{MIN}[camera.calibration]\nfile = \"p.toml\"\n{pts}max_point_error_mm = -1\n"));
+        assert!(e.contains("max_point_error_mm"), "{e}");
     }
 
     #[test]

@@ -386,7 +386,17 @@ mod tests {
         TruthRecord { image: "images/x.png".into(), condition: cond.into(), noise_sigma: 1.0, parts }
     }
     fn tp(t: &str, face: &str, a: f64, x: f64, y: f64) -> TruthPart {
-        TruthPart { type_name: t.into(), face: face.into(), angle_deg: a, x_px: x, y_px: y, visible_fraction: 1.0 }
+        TruthPart {
+            type_name: t.into(),
+            face: face.into(),
+            angle_deg: a,
+            x_px: x,
+            y_px: y,
+            visible_fraction: 1.0,
+            x_mm: None,
+            y_mm: None,
+            robot_angle_deg: None,
+        }
     }
 
     #[test]

@@ -63,6 +63,47 @@ enum Cmd {
         width: usize,
         #[arg(long, default_value_t = 1944)]
         height: usize,
+        /// Render through the built-in cell's camera (tilt, barrel distortion, robot frame):
+        /// truth gains x_mm, y_mm and robot_angle_deg, and plates/ holds a calibration plate of
+        /// each kind with its touched-up points (plates/plates.json).
+        #[arg(long)]
+        cell: bool,
+    },
+    /// Calibrate a camera from images of a grid plate lying on the belt: lens and plane, written
+    /// to a calibration file for `[camera.calibration] file`.
+    Calibrate {
+        #[arg(long, value_parser = parse_grid)]
+        grid: lfi_bridge::plate::Grid,
+        /// Points per row: dots, or a chessboard's inner corners.
+        #[arg(long)]
+        cols: usize,
+        /// Rows of points.
+        #[arg(long)]
+        rows: usize,
+        /// Distance between neighbouring points, mm (asymmetric circles: OpenCV's square size,
+        /// half the distance between dots in a row).
+        #[arg(long)]
+        pitch_mm: f64,
+        /// The calibration file to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Print one JSON object instead of text.
+        #[arg(long)]
+        json: bool,
+        #[arg(required = true)]
+        images: Vec<PathBuf>,
+    },
+    /// Print the robot millimetres of image points through a camera's calibration (its start
+    /// job's), one "X_MM Y_MM" line per point, without starting any camera.
+    Map {
+        #[arg(long)]
+        config: PathBuf,
+        /// The camera (its unit id); may be left out when there is one camera.
+        #[arg(long)]
+        camera: Option<u8>,
+        /// Image points "X,Y" in pixels.
+        #[arg(required = true, allow_hyphen_values = true)]
+        points: Vec<String>,
     },
     /// Estimate parts in images.
     Estimate {
@@ -96,6 +137,10 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+}
+
+fn parse_grid(s: &str) -> Result<lfi_bridge::plate::Grid, String> {
+    s.parse()
 }
 
 fn parse_face(s: &str) -> Result<Face, String> {
@@ -144,7 +189,13 @@ fn main() -> ExitCode {
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Enroll { kb, type_name, id, face, origin, keep_out, image } => enroll(&kb, &type_name, id, face, origin, keep_out, &image),
-        Cmd::Simulate { out, count, seed, noise, width, height } => simulate(&out, count, SimConfig { width, height, seed, noise }),
+        Cmd::Simulate { out, count, seed, noise, width, height, cell } => {
+            simulate(&out, count, SimConfig { width, height, seed, noise }, cell)
+        }
+        Cmd::Calibrate { grid, cols, rows, pitch_mm, out, json, images } => {
+            calibrate(lfi_bridge::plate::GridSpec { grid, cols, rows, pitch_mm }, &out, json, &images)
+        }
+        Cmd::Map { config, camera, points } => map(&config, camera, &points),
         Cmd::Estimate { kb, json, overlay_dir, repeat, images } => estimate(&kb, json, overlay_dir.as_deref(), repeat.max(1), &images),
         Cmd::Eval { kb, truth, json } => evaluate(&kb, &truth, json),
     };
@@ -250,8 +301,11 @@ fn bar(len: u64, what: &str) -> ProgressBar {
     pb
 }
 
-fn simulate(out: &Path, count: u64, cfg: SimConfig) -> Result<ExitCode> {
-    let sim = Simulator::new(cfg)?;
+fn simulate(out: &Path, count: u64, cfg: SimConfig, cell: bool) -> Result<ExitCode> {
+    let sim = if cell { Simulator::new(cfg)?.through_cell_camera() } else { Simulator::new(cfg)? };
+    if cell {
+        write_plates(&sim, &out.join("plates"))?;
+    }
     let images = out.join("images");
     let templates = out.join("templates");
     for d in [&images, &templates] {
@@ -278,6 +332,155 @@ fn simulate(out: &Path, count: u64, cfg: SimConfig) -> Result<ExitCode> {
     imageio::write_atomic(&truth, lines.as_bytes()).with_context(|| format!("cannot write {}", truth.display()))?;
     println!("wrote {count} scenes, {} templates and {}", sim.type_names().len() * 2, truth.display());
     println!("types (enroll with ids in this order): {}; never enrolled: {}", sim.type_names().join(", "), sim.unknown_type_name());
+    Ok(ExitCode::SUCCESS)
+}
+
+/// A plate of each kind as the cell's camera sees it, and `plates.json`: per plate its grid and
+/// four grid points near the field's corners as a robot would touch them up (true pixels and
+/// robot millimetres).
+fn write_plates(sim: &Simulator, dir: &Path) -> Result<()> {
+    use lfi_bridge::plate::Grid;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let optics = sim.optics().context("plates need the cell's camera")?;
+    let mut index = Vec::new();
+    for grid in [Grid::Circles, Grid::AsymmetricCircles, Grid::Chessboard] {
+        let (img, plate) = sim.plate(grid, 0.6)?;
+        let name = format!("{}.png", grid.as_str());
+        imageio::write_png(&dir.join(&name), &img)?;
+        let pts = plate.points();
+        let (c, r) = (plate.cols, plate.rows);
+        let touch: Vec<[f64; 4]> = [c + 1, 2 * c - 2, (r - 2) * c + 1, (r - 1) * c - 2]
+            .iter()
+            .map(|&i| {
+                let flat = plate.to_belt(pts[i]) * sim.px_per_mm();
+                let flat = Pt::new(flat.x, flat.y);
+                let (px, mm) = (optics.to_frame(flat), optics.to_robot(flat));
+                let r = |v: f64| (v * 1000.0).round() / 1000.0;
+                [r(px.x), r(px.y), r(mm.x), r(mm.y)]
+            })
+            .collect();
+        index.push(serde_json::json!({
+            "image": name, "grid": grid.as_str(), "cols": c, "rows": r, "pitch_mm": plate.pitch_mm, "touch_ups": touch,
+        }));
+    }
+    let path = dir.join("plates.json");
+    imageio::write_atomic(&path, serde_json::to_string_pretty(&index)?.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
+
+fn calibrate(spec: lfi_bridge::plate::GridSpec, out: &Path, json: bool, images: &[PathBuf]) -> Result<ExitCode> {
+    use lfi_bridge::calibration::{PlateFile, PlateFitRecord, PlateGrid};
+    use lfi_bridge::lens::View;
+    let mut views = Vec::new();
+    let mut used = Vec::new();
+    let mut refused: Vec<(String, String)> = Vec::new();
+    let mut size: Option<(usize, usize, PathBuf)> = None;
+    for path in images {
+        let (img, _) = match imageio::read_gray(path) {
+            Ok(i) => i,
+            Err(e) => {
+                refused.push((path.display().to_string(), e.to_string()));
+                continue;
+            }
+        };
+        if let Some((w, h, first)) = &size
+            && (img.width, img.height) != (*w, *h)
+        {
+            refused
+                .push((path.display().to_string(), format!("{} x {} pixels, but {} is {w} x {h}", img.width, img.height, first.display())));
+            continue;
+        }
+        match lfi_bridge::plate::find_grid(&img, &spec) {
+            Ok(pixels) => {
+                tracing::info!("{}: {} grid points found", path.display(), pixels.len());
+                size.get_or_insert((img.width, img.height, path.clone()));
+                views.push(View { pixels, plate: spec.plate_points() });
+                used.push(path.display().to_string());
+            }
+            Err(e) => refused.push((path.display().to_string(), e.to_string())),
+        }
+    }
+    for (p, why) in &refused {
+        tracing::warn!("{p}: grid not used: {why}");
+    }
+    let Some((width, height, _)) = size else {
+        let why: Vec<String> = refused.iter().map(|(p, w)| format!("{p}: {w}")).collect();
+        bail!("no image showed the {} x {} {} grid:\n  {}", spec.cols, spec.rows, spec.grid.as_str(), why.join("\n  "));
+    };
+    let fit = lfi_bridge::lens::fit_plate(&views, width, height).context("the lens fit")?;
+    let record = PlateFitRecord {
+        images: images.iter().map(|p| p.display().to_string()).collect(),
+        images_used: views.len(),
+        points: fit.points,
+        rms_px: fit.rms_px,
+        residual_mm_median: fit.residual_mm_median,
+        residual_mm_max: fit.residual_mm_max,
+    };
+    let grid = PlateGrid { kind: spec.grid.as_str().into(), cols: spec.cols, rows: spec.rows, pitch_mm: spec.pitch_mm };
+    let file = PlateFile::new(&fit.camera, width, height, grid, record);
+    imageio::write_atomic(out, file.to_toml()?.as_bytes()).with_context(|| format!("cannot write {}", out.display()))?;
+    let lens = &fit.camera.lens;
+    if json {
+        let v = serde_json::json!({
+            "out": out.display().to_string(),
+            "rms_px": fit.rms_px,
+            "residual_mm_max": fit.residual_mm_max,
+            "residual_mm_median": fit.residual_mm_median,
+            "images_used": views.len(),
+            "points": fit.points,
+            "k1": lens.k1, "k2": lens.k2, "p1": lens.p1, "p2": lens.p2,
+            "centre_px": lens.centre_px,
+            "corner_shift_px": lens.corner_shift_px(width, height),
+            "refused": refused.iter().map(|(p, w)| serde_json::json!({"image": p, "why": w})).collect::<Vec<_>>(),
+        });
+        println!("{v}");
+    } else {
+        println!("wrote {}: {} of {} images used, {} grid points", out.display(), views.len(), images.len(), fit.points);
+        println!(
+            "reprojection RMS {:.4} px; plate residual median {:.4} mm, max {:.4} mm",
+            fit.rms_px, fit.residual_mm_median, fit.residual_mm_max
+        );
+        println!(
+            "lens: k1 {:.5}, k2 {:.5}, p1 {:.6}, p2 {:.6}, centre ({:.1}, {:.1}) px: the frame's corners move {:.1} px",
+            lens.k1,
+            lens.k2,
+            lens.p1,
+            lens.p2,
+            lens.centre_px[0],
+            lens.centre_px[1],
+            lens.corner_shift_px(width, height)
+        );
+        for (p, why) in &refused {
+            println!("not used: {p}: {why}");
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn map(config: &Path, unit: Option<u8>, points: &[String]) -> Result<ExitCode> {
+    let cfg = lfi_bridge::config::Config::load(config)?;
+    let ids: Vec<u8> = cfg.cameras.iter().map(|c| c.unit_id).collect();
+    let cam = match unit {
+        Some(u) => cfg
+            .cameras
+            .iter()
+            .find(|c| c.unit_id == u)
+            .with_context(|| format!("{}: no camera with unit id {u} (cameras: {ids:?})", config.display()))?,
+        None if cfg.cameras.len() == 1 => &cfg.cameras[0],
+        None => bail!("{}: {} cameras (unit ids {ids:?}): say which with --camera", config.display(), cfg.cameras.len()),
+    };
+    let job = cam.job(cam.start_job).with_context(|| format!("camera {}: start job {} is not configured", cam.unit_id, cam.start_job))?;
+    let cal = lfi_bridge::calibration::Calibration::from_config(&job.calibration)
+        .with_context(|| format!("camera {}: calibration", cam.unit_id))?;
+    tracing::info!("camera {} job {}: {}", cam.unit_id, job.id, cal.describe());
+    let mut out = String::new();
+    for p in points {
+        let q = parse_point(p).map_err(|e| anyhow::anyhow!("point {e}"))?;
+        let (x, y) = cal.to_robot(q.x, q.y).with_context(|| format!("point {p:?} is outside the calibrated field"))?;
+        out.push_str(&format!("{x:.3} {y:.3}\n"));
+    }
+    print!("{out}");
     Ok(ExitCode::SUCCESS)
 }
 

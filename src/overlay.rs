@@ -154,3 +154,70 @@ pub fn thumbnail(t: &crate::vision::Template, size: i32) -> opencv::Result<Mat> 
     }
     Ok(img)
 }
+
+/// Lines of constant robot X and Y over a picture of the frame (frame pixels times `scale`),
+/// each labelled with its millimetres: what a commissioning engineer compares with the robot's
+/// touch-up. The spacing is the round number (1, 2 or 5 times a power of ten) that gives about
+/// eight lines across the field; each line is drawn through the calibration point by point, so
+/// a lens's curvature shows.
+pub fn draw_grid(img: &mut Mat, cal: &crate::calibration::Calibration, width: usize, height: usize, scale: f64) -> opencv::Result<()> {
+    let (w, h) = (width as f64 - 1.0, height as f64 - 1.0);
+    // The field's extent in robot millimetres, from points around its edge.
+    let mut edge = Vec::new();
+    for i in 0..=20 {
+        let t = i as f64 / 20.0;
+        edge.extend([(t * w, 0.0), (t * w, h), (0.0, t * h), (w, t * h)]);
+    }
+    let mm: Vec<(f64, f64)> = edge.iter().filter_map(|&(x, y)| cal.to_robot(x, y)).collect();
+    if mm.len() < 4 {
+        return Ok(());
+    }
+    let lo = |f: fn(&(f64, f64)) -> f64| mm.iter().map(f).fold(f64::INFINITY, f64::min);
+    let hi = |f: fn(&(f64, f64)) -> f64| mm.iter().map(f).fold(f64::NEG_INFINITY, f64::max);
+    let (x0, x1, y0, y1) = (lo(|p| p.0), hi(|p| p.0), lo(|p| p.1), hi(|p| p.1));
+    let span = (x1 - x0).max(y1 - y0);
+    if !(span.is_finite() && span > 0.0) {
+        return Ok(());
+    }
+    let raw = span / 8.0;
+    let mag = 10f64.powf(raw.log10().floor());
+    let step = [1.0, 2.0, 5.0, 10.0].iter().map(|m| m * mag).find(|s| *s >= raw).unwrap_or(10.0 * mag);
+    let color = bgr(YELLOW);
+    let inside = |p: (f64, f64)| p.0 >= 0.0 && p.1 >= 0.0 && p.0 <= w && p.1 <= h;
+    // One family of lines: `fixed` runs over multiples of the step, `along` over the field.
+    let mut family = |fixed: (f64, f64), along: (f64, f64), x_is_fixed: bool| -> opencv::Result<()> {
+        let mut v = (fixed.0 / step).ceil() * step;
+        while v <= fixed.1 {
+            let n = 200;
+            let mut run: Vec<Pt> = Vec::new();
+            let mut first: Option<Pt> = None;
+            for i in 0..=n {
+                let u = along.0 + (along.1 - along.0) * i as f64 / n as f64;
+                let (x, y) = if x_is_fixed { (v, u) } else { (u, v) };
+                match cal.to_pixel(x, y).filter(|p| inside(*p)) {
+                    Some((px, py)) => {
+                        first.get_or_insert(Pt::new(px, py));
+                        run.push(Pt::new(px, py));
+                    }
+                    None => {
+                        for s in run.windows(2) {
+                            line(img, s[0], s[1], scale, color, 1)?;
+                        }
+                        run.clear();
+                    }
+                }
+            }
+            for s in run.windows(2) {
+                line(img, s[0], s[1], scale, color, 1)?;
+            }
+            if let Some(p) = first {
+                let text = format!("{}={v:.0}", if x_is_fixed { "X" } else { "Y" });
+                label(img, &text, Pt::new(p.x * scale + 4.0, p.y * scale + 14.0), 0.4, color)?;
+            }
+            v += step;
+        }
+        Ok(())
+    };
+    family((x0, x1), (y0, y1), true)?;
+    family((y0, y1), (x0, x1), false)
+}

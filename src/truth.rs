@@ -35,6 +35,17 @@ pub struct TruthPart {
     /// truth file predates the field; below 1: partly covered by another part).
     #[serde(default = "whole")]
     pub visible_fraction: f64,
+    /// Where the robot finds the part, robot millimetres (scenes of a simulated cell with a
+    /// camera model and a robot frame; absent otherwise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub x_mm: Option<f64>,
+    /// See `x_mm`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub y_mm: Option<f64>,
+    /// The part's angle in the robot frame, degrees counter-clockwise from robot +X towards +Y
+    /// (with `x_mm`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub robot_angle_deg: Option<f64>,
 }
 
 fn whole() -> f64 {

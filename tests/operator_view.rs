@@ -33,7 +33,15 @@ async fn every_endpoint_answers_with_its_content_type() {
     let (st, _, _) = get("/api/camera/1/frame.jpg").await;
     assert_eq!(st, 404, "no frame before the first trigger");
     one_frame(&running).await;
-    let (st, ct, body) = get("/api/camera/1/frame.jpg").await;
+    // The PLC sees RESULT_VALID a moment before the page's copy of the frame is stored.
+    let until = std::time::Instant::now() + Duration::from_secs(10);
+    let (st, ct, body) = loop {
+        let r = get("/api/camera/1/frame.jpg").await;
+        if r.0 != 404 || std::time::Instant::now() > until {
+            break r;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    };
     assert_eq!((st, ct.as_str()), (200, "image/jpeg"));
     assert_eq!(&body[..2], &[0xFF, 0xD8]);
     let (st, ct, body) = get("/api/state").await;

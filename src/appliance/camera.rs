@@ -28,6 +28,8 @@ pub struct InForce {
     pub kb: crate::config::KbSource,
     /// The parameters its estimator was built with.
     pub params: crate::vision::Params,
+    /// Its pixels-to-millimetres mapping (the operator view shows it and draws its grid).
+    pub calibration: Calibration,
 }
 
 /// What the operator view shows of a camera: the latest frame and estimate, and counters.
@@ -179,7 +181,13 @@ impl Worker {
                 self.roi = job.roi;
                 self.calibration = l.calibration;
                 *self.templates.lock().unwrap_or_else(|p| p.into_inner()) = l.kb;
-                *in_force = InForce { id: job.id, name: job.name.clone(), kb: job.kb.clone(), params: l.params };
+                *in_force = InForce {
+                    id: job.id,
+                    name: job.name.clone(),
+                    kb: job.kb.clone(),
+                    params: l.params,
+                    calibration: self.calibration.clone(),
+                };
                 hs.set_types_enrolled(types);
                 hs.job_changed(id, JobOutcome::InForce { expected_type: job.expected_type });
                 tracing::info!(
@@ -234,7 +242,7 @@ impl Worker {
                 self.note_error(e.to_string());
                 Outcome::Failed { fault }
             }
-            Ok(f) => match self.estimate(&f.image) {
+            Ok(f) => match self.calibration_fits(&f.image).and_then(|()| self.estimate(&f.image).map_err(|e| e.to_string())) {
                 Err(e) => {
                     tracing::warn!(camera = %self.name, acq_id, frame = %f.label, "frame error: {e}");
                     self.note_error(format!("{}: {e}", f.label));
@@ -329,6 +337,18 @@ impl Worker {
         }
     }
 
+    /// A plate calibration holds only for frames of the size it was made on: another size (a
+    /// binning or ROI changed on the camera) would put every part in the wrong place.
+    fn calibration_fits(&self, img: &GrayImage) -> Result<(), String> {
+        match self.calibration.frame_size() {
+            Some((w, h)) if (w, h) != (img.width, img.height) => Err(format!(
+                "frame is {} x {} pixels but the plate calibration was made on {w} x {h} frames: no positions in millimetres from it (calibrate again, or restore the camera's size)",
+                img.width, img.height
+            )),
+            _ => Ok(()),
+        }
+    }
+
     fn estimate(&self, img: &GrayImage) -> Result<FrameEstimate, crate::vision::FrameError> {
         let estimator = self.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
         estimate_in(&estimator, img, self.roi)
@@ -337,7 +357,7 @@ impl Worker {
     /// A part's result in the robot frame, as the estimate left it (the handshake makes the
     /// final one).
     fn result(&self, p: &PartEstimate) -> PartResult {
-        let (x, y, a) = self.calibration.apply(p.x, p.y, p.angle_deg);
+        let (x, y, a) = self.calibration.apply_part(p.x, p.y, p.angle_deg, &p.outline);
         PartResult {
             accepted: p.accepted,
             reason: p.reason,

@@ -198,10 +198,12 @@ fn source_for(cam: &CameraConfig) -> Result<SourceWithStats, StartError> {
         return Ok((Box::new(src), Some(stats)));
     }
     let source: Box<dyn Source> = match &cam.source {
-        SourceConfig::Sim { seed, width, height, noise, scenes, interval } => {
+        SourceConfig::Sim { seed, width, height, noise, scenes, interval, cell } => {
             let sim = Simulator::new(SimSource::config(*seed, *width, *height, *noise))
                 .map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })?;
-            tracing::info!(camera = %cam.name, "rendering {scenes} simulated scenes of {width} x {height}");
+            let sim = if *cell { sim.through_cell_camera() } else { sim };
+            let through = if *cell { " through the cell's camera (tilt, lens distortion)" } else { "" };
+            tracing::info!(camera = %cam.name, "rendering {scenes} simulated scenes of {width} x {height}{through}");
             Box::new(
                 SimSource::new(&sim, *scenes, *interval)
                     .map_err(|e| StartError::Sim { camera: cam.name.clone(), message: e.to_string() })?,
@@ -258,7 +260,13 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
                 tracing::warn!(camera = %cam.name, "job {} ({}): knowledge base {} does not exist (a change to it will fail)", other.id, other.name, p.display());
             }
         }
-        let in_force = Arc::new(Mutex::new(camera::InForce { id: job.id, name: job.name.clone(), kb: job.kb.clone(), params: job_params }));
+        let in_force = Arc::new(Mutex::new(camera::InForce {
+            id: job.id,
+            name: job.name.clone(),
+            kb: job.kb.clone(),
+            params: job_params,
+            calibration: calibration.clone(),
+        }));
         let templates = Arc::new(Mutex::new(entries));
         let handshake = Arc::new(Mutex::new(Handshake::new(Settings {
             queue_depth: cfg.queue_depth,

@@ -379,8 +379,18 @@ async fn events(State(state): State<AppState>) -> Response {
     Sse::new(stream).keep_alive(KeepAlive::default()).into_response()
 }
 
-async fn frame_jpg(State(state): State<AppState>, Path(unit): Path<u8>) -> Result<Response, Failure> {
+/// `frame.jpg?grid=true`: the robot frame's grid drawn over the picture.
+#[derive(Deserialize)]
+struct GridQuery {
+    #[serde(default)]
+    grid: bool,
+}
+
+async fn frame_jpg(State(state): State<AppState>, Path(unit): Path<u8>, Query(q): Query<GridQuery>) -> Result<Response, Failure> {
     let cam = camera(&state, unit)?;
+    if q.grid {
+        return frame_with_grid(cam).await;
+    }
     let slot = state.cameras.iter().position(|c| std::ptr::eq(c, cam)).and_then(|i| state.pictures.get(i));
     let slot = slot.ok_or((StatusCode::INTERNAL_SERVER_ERROR, "no picture slot for this camera".to_string()))?;
     let mut cached = slot.lock().await;
@@ -407,6 +417,29 @@ async fn frame_jpg(State(state): State<AppState>, Path(unit): Path<u8>) -> Resul
             bytes
         }
     };
+    Ok(([(header::CONTENT_TYPE, "image/jpeg"), (header::CACHE_CONTROL, "no-store")], bytes).into_response())
+}
+
+/// The latest frame with its parts and the calibration's grid of robot millimetres (drawn for
+/// each request: only a commissioning engineer asks for it).
+async fn frame_with_grid(cam: &CameraHandle) -> Result<Response, Failure> {
+    let (frame, estimate) = {
+        let live = cam.live.lock().unwrap_or_else(|p| p.into_inner());
+        (live.frame.clone(), live.estimate.clone())
+    };
+    let (Some(frame), Some(estimate)) = (frame, estimate) else { return Err((StatusCode::NOT_FOUND, "no frame yet".into())) };
+    let estimator = cam.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
+    let calibration = cam.job.lock().unwrap_or_else(|p| p.into_inner()).calibration.clone();
+    let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, Failure> {
+        let fail = |e: opencv::Error| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string());
+        let scale = (960.0 / frame.width as f64).min(1.0);
+        let view = frame.view().map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+        let mut pic = crate::overlay::draw(view, &estimate, &estimator, scale).map_err(fail)?;
+        crate::overlay::draw_grid(&mut pic, &calibration, frame.width, frame.height, scale).map_err(fail)?;
+        crate::imageio::encode_mat(&pic, ".jpg").map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e))
+    })
+    .await
+    .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
     Ok(([(header::CONTENT_TYPE, "image/jpeg"), (header::CACHE_CONTROL, "no-store")], bytes).into_response())
 }
 

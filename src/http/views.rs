@@ -130,6 +130,59 @@ struct JobView {
     request: u16,
     /// Every configured job: (id, name).
     jobs: Vec<(u16, String)>,
+    /// The job's calibration.
+    calibration: CalibrationView,
+}
+
+/// The calibration in force: what it is and how well it fits.
+#[derive(Serialize)]
+struct CalibrationView {
+    /// "scale", "homography" or "plate".
+    kind: &'static str,
+    /// The start-up log's line for it.
+    summary: String,
+    /// A plate calibration's figures.
+    plate: Option<PlateView>,
+}
+
+#[derive(Serialize)]
+struct PlateView {
+    file: String,
+    grid: String,
+    rms_px: f64,
+    residual_mm_max: f64,
+    k1: f64,
+    k2: f64,
+    /// How far the lens moves the frame's farthest corner, pixels.
+    corner_shift_px: f64,
+    mirrored: bool,
+    scale: f64,
+    /// Each touched-up point's residual, mm, in the configured order.
+    points_mm: Vec<f64>,
+}
+
+fn calibration_view(c: &crate::calibration::Calibration) -> CalibrationView {
+    use crate::calibration::Calibration;
+    let (kind, plate) = match c {
+        Calibration::Scale(_) => ("scale", None),
+        Calibration::Homography { .. } => ("homography", None),
+        Calibration::Plate(p) => (
+            "plate",
+            Some(PlateView {
+                file: p.file.display().to_string(),
+                grid: format!("{} {} x {}, pitch {} mm", p.plate.grid.kind, p.plate.grid.cols, p.plate.grid.rows, p.plate.grid.pitch_mm),
+                rms_px: p.plate.fit.rms_px,
+                residual_mm_max: p.plate.fit.residual_mm_max,
+                k1: p.plate.lens.k1,
+                k2: p.plate.lens.k2,
+                corner_shift_px: p.plate.lens.corner_shift_px(p.plate.width, p.plate.height),
+                mirrored: p.robot.mirrored,
+                scale: p.robot.scale,
+                points_mm: p.residuals_mm.clone(),
+            }),
+        ),
+    };
+    CalibrationView { kind, summary: c.describe(), plate }
 }
 
 /// The whole page's state.
@@ -218,7 +271,10 @@ pub fn camera_view(c: &CameraHandle) -> CameraView {
         (hs.read(0, map::SIZE), hs.settings().word_order)
     };
     let job = {
-        let name = c.job.lock().unwrap_or_else(|p| p.into_inner()).name.clone();
+        let (name, calibration) = {
+            let j = c.job.lock().unwrap_or_else(|p| p.into_inner());
+            (j.name.clone(), calibration_view(&j.calibration))
+        };
         let status = map::lookup(map::addr::JOB_STATUS).and_then(|r| code_word(r, words[map::addr::JOB_STATUS as usize])).unwrap_or("?");
         JobView {
             id: words[map::addr::JOB_ID as usize],
@@ -226,6 +282,7 @@ pub fn camera_view(c: &CameraHandle) -> CameraView {
             status,
             request: words[map::addr::JOB_REQUEST as usize],
             jobs: c.jobs.clone(),
+            calibration,
         }
     };
     let (templates_key, names): (String, Vec<(u16, String)>) = {

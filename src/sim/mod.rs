@@ -4,6 +4,7 @@
 //! Conditions cycle through [`CONDITIONS`]; `noise` scenes cycle through sigma 10, 20, 30, 40.
 
 pub mod models;
+pub mod optics;
 pub mod render;
 
 use rand::{RngExt, SeedableRng};
@@ -107,6 +108,7 @@ pub struct Simulator {
     unknown: Prepared,
     debris: Vec<Prepared>,
     px_per_mm: f64,
+    optics: Option<optics::Optics>,
 }
 
 impl Simulator {
@@ -127,8 +129,68 @@ impl Simulator {
             unknown: Prepared::new(models::unknown()),
             debris: models::debris().into_iter().map(Prepared::new).collect(),
             px_per_mm,
+            optics: None,
             cfg,
         })
+    }
+
+    /// The same simulator seen through the built-in cell's camera ([`optics::Optics::cell`]):
+    /// frames tilted and distorted, truth positions in frame pixels and robot millimetres.
+    pub fn through_cell_camera(self) -> Self {
+        let o = optics::Optics::cell(self.cfg.width, self.cfg.height, self.px_per_mm);
+        self.with_optics(o)
+    }
+
+    /// The same simulator seen through a camera model of one's own.
+    pub fn with_optics(mut self, optics: optics::Optics) -> Self {
+        self.optics = Some(optics);
+        self
+    }
+
+    /// The camera model frames are rendered through, if any.
+    pub fn optics(&self) -> Option<&optics::Optics> {
+        self.optics.as_ref()
+    }
+
+    /// Flat render pixels per belt millimetre.
+    pub fn px_per_mm(&self) -> f64 {
+        self.px_per_mm
+    }
+
+    /// The calibration plate that covers most of the field, as the cell's camera sees it (the
+    /// flat render when there is no camera model), and the plate; see [`Simulator::plate_image`].
+    pub fn plate(&self, grid: optics::Grid, blur: f64) -> Result<(GrayImage, optics::Plate), SimError> {
+        let (w, h) = (self.cfg.width as f64 / self.px_per_mm, self.cfg.height as f64 / self.px_per_mm);
+        let plate = optics::Plate::covering(grid, w, h);
+        Ok((self.plate_image(&plate, blur)?, plate))
+    }
+
+    /// A plate lying on the belt as the camera sees it: blurred by `blur` px, with sensor noise
+    /// of sigma 2 gray levels.
+    pub fn plate_image(&self, plate: &optics::Plate, blur: f64) -> Result<GrayImage, SimError> {
+        let flat = plate.render(self.cfg.width, self.cfg.height, self.px_per_mm, blur)?;
+        let mut image = match &self.optics {
+            Some(o) => o.image(&flat)?,
+            None => flat,
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(self.cfg.seed ^ 0x0A7E);
+        let noise = rand_distr::Normal::new(0.0, 2.0).expect("a positive sigma");
+        for v in image.data.iter_mut() {
+            *v = (*v as f64 + rand_distr::Distribution::sample(&noise, &mut rng)).round().clamp(0.0, 255.0) as u8;
+        }
+        Ok(image)
+    }
+
+    /// Where a point of the belt (millimetres) shows in the frame, pixels.
+    pub fn belt_to_frame(&self, belt_mm: nalgebra::Vector2<f64>) -> Pt {
+        let flat = Pt::new(belt_mm.x * self.px_per_mm, belt_mm.y * self.px_per_mm);
+        self.optics.as_ref().map_or(flat, |o| o.to_frame(flat))
+    }
+
+    /// The robot millimetres a frame pixel truly shows (None without the cell's camera).
+    pub fn frame_to_robot(&self, px: Pt) -> Option<nalgebra::Vector2<f64>> {
+        let o = self.optics.as_ref()?;
+        o.to_flat(px).map(|f| o.to_robot(f))
     }
 
     /// Names of the enrollable types, in id order (1, 2, 3...).
@@ -279,8 +341,12 @@ impl Simulator {
                 }
             }
         }
-        let debris: Vec<Pt> = scene_parts[parts.len()..].iter().map(|(_, pl)| Pt::new(pl.x, pl.y)).collect();
-        let image = render::render(self.cfg.width, self.cfg.height, &scene_parts, &light, &mut rng)?;
+        let mut debris: Vec<Pt> = scene_parts[parts.len()..].iter().map(|(_, pl)| Pt::new(pl.x, pl.y)).collect();
+        let mut image = render::render(self.cfg.width, self.cfg.height, &scene_parts, &light, &mut rng)?;
+        if let Some(o) = &self.optics {
+            image = o.image(&image)?;
+            debris.iter_mut().for_each(|d| *d = o.to_frame(*d));
+        }
         let name = format!("s{index:05}_{condition}");
         let r4 = |v: f64| (v * 10000.0).round() / 10000.0;
         let r3 = |v: f64| (v * 1000.0).round() / 1000.0;
@@ -292,13 +358,26 @@ impl Simulator {
             parts: parts
                 .iter()
                 .zip(&visible)
-                .map(|((p, pl), v)| TruthPart {
-                    type_name: p.model.name.to_string(),
-                    face: pl.face.as_str().to_string(),
-                    angle_deg: r4(pl.angle_deg),
-                    x_px: r3(pl.x),
-                    y_px: r3(pl.y),
-                    visible_fraction: r4(*v),
+                .map(|((p, pl), v)| {
+                    let mut t = TruthPart {
+                        type_name: p.model.name.to_string(),
+                        face: pl.face.as_str().to_string(),
+                        angle_deg: r4(pl.angle_deg),
+                        x_px: r3(pl.x),
+                        y_px: r3(pl.y),
+                        visible_fraction: r4(*v),
+                        x_mm: None,
+                        y_mm: None,
+                        robot_angle_deg: None,
+                    };
+                    if let Some(o) = &self.optics {
+                        let flat = Pt::new(pl.x, pl.y);
+                        let (f, m) = (o.to_frame(flat), o.to_robot(flat));
+                        let (frame_deg, robot_deg) = o.angles(flat, pl.angle_deg);
+                        (t.x_px, t.y_px, t.angle_deg) = (r3(f.x), r3(f.y), r4(frame_deg));
+                        (t.x_mm, t.y_mm, t.robot_angle_deg) = (Some(r4(m.x)), Some(r4(m.y)), Some(r4(robot_deg)));
+                    }
+                    t
                 })
                 .collect(),
         };
