@@ -70,6 +70,14 @@ fn plate_file(fit: &PlateFit, plate: &Plate) -> PlateFile {
     PlateFile::new(&fit.camera, 2592, 1944, grid, record)
 }
 
+/// A plate calibration of `sim`'s cell written to `dir/cal.toml`, and the plate it was made with.
+fn calibration_file(sim: &Simulator, grid: Grid, dir: &Path) -> (std::path::PathBuf, Plate) {
+    let (fit, plate) = calibrated(sim, grid);
+    let file = dir.join("cal.toml");
+    std::fs::write(&file, plate_file(&fit, &plate).to_toml().unwrap()).unwrap();
+    (file, plate)
+}
+
 fn median_max(mut v: Vec<f64>) -> (f64, f64) {
     v.sort_by(f64::total_cmp);
     (v[v.len() / 2], v[v.len() - 1])
@@ -183,10 +191,8 @@ fn robot_millimetres_over_the_whole_field_are_within_hundredths_where_a_homograp
 #[test]
 fn touch_up_points_that_disagree_or_do_not_fix_the_frame_are_refused_by_name() {
     let sim = cell(5);
-    let (fit, plate) = calibrated(&sim, Grid::AsymmetricCircles);
     let dir = tempfile::tempdir().unwrap();
-    let file = dir.path().join("cal.toml");
-    std::fs::write(&file, plate_file(&fit, &plate).to_toml().unwrap()).unwrap();
+    let (file, plate) = calibration_file(&sim, Grid::AsymmetricCircles, dir.path());
     let (c, r) = (plate.cols, plate.rows);
     let mut marks = touch_ups(&sim, &plate, &[0, c - 1, (r - 1) * c, r * c - 1, (r / 2) * c + c / 2]);
     let config = |points: Vec<[f64; 4]>, limit: f64| CalibrationConfig::Plate {
@@ -282,9 +288,8 @@ async fn a_calibrated_camera_serves_part_positions_in_robot_millimetres() {
     use common::appliance::{cycle, plc, start};
     use lfi_bridge::registers::{WordOrder, addr, u32_from_words};
     let sim = cell(9);
-    let (fit, plate) = calibrated(&sim, Grid::Circles);
     let dir = tempfile::tempdir().unwrap();
-    std::fs::write(dir.path().join("cal.toml"), plate_file(&fit, &plate).to_toml().unwrap()).unwrap();
+    let (_, plate) = calibration_file(&sim, Grid::Circles, dir.path());
     let path = dir.path().join("cell.toml");
     std::fs::write(&path, cell_config(9, SCENES, &touch_ups(&sim, &plate, &corner_marks(&plate)))).unwrap();
     let cfg = lfi_bridge::config::Config::load(&path).unwrap();
@@ -334,10 +339,8 @@ async fn a_calibrated_camera_serves_part_positions_in_robot_millimetres() {
 fn mapping_the_placed_outline_cancels_the_stretch_of_the_lens_on_part_positions() {
     use lfi_bridge::vision::{Estimator, Params};
     let sim = cell(9);
-    let (fit, plate) = calibrated(&sim, Grid::Circles);
     let dir = tempfile::tempdir().unwrap();
-    let file = dir.path().join("cal.toml");
-    std::fs::write(&file, plate_file(&fit, &plate).to_toml().unwrap()).unwrap();
+    let (file, plate) = calibration_file(&sim, Grid::Circles, dir.path());
     let marks = touch_ups(&sim, &plate, &corner_marks(&plate));
     let cal = Calibration::from_config(&CalibrationConfig::Plate { file, points: marks, scaled: true, max_point_error_mm: 0.5 }).unwrap();
     let params = Params::default();
