@@ -288,34 +288,54 @@ impl Calibration {
         }
     }
 
-    /// Maps a part's pose: its position, its image angle, and its outline as the estimate placed
-    /// the template (frame pixels). Where the mapping is not a plain scale (a lens, a tilt), a
-    /// part's image is not its template moved rigidly: it is stretched by up to a few percent,
-    /// differently along and across the radius, and the estimator's rigid fit of the template
-    /// then misplaces the template's origin by that stretch times the origin's offset from the
-    /// outline's middle (0.8 px at the cell's corners, 0.15 mm). Mapping the placed outline
-    /// through the calibration and fitting one similarity to it cancels that to first order:
-    /// the similarity's stretch-free part is the part's true rigid pose in the robot frame.
-    pub fn apply_part(&self, x: f64, y: f64, angle_deg: f64, outline: &[Pt]) -> (f64, f64, f64) {
-        if matches!(self, Calibration::Scale(_)) || outline.len() < 8 {
-            return self.apply(x, y, angle_deg);
+    /// Maps a part's pose to the robot frame. Where the mapping is not a plain scale (a lens, a
+    /// tilt), a part's image is not its template moved rigidly: it is stretched by up to a few
+    /// percent, differently along and across the radius and more on one side than the other,
+    /// and the estimator's rigid fit misplaces the template's origin by that stretch times the
+    /// origin's offset from the outline's middle (up to 2 px at the simulated cell's corners,
+    /// 0.3 mm). So the part's outline (frame pixels: the measured one for a separate part) is
+    /// taken through the calibration into the plane and back to pixels by one similarity fitted
+    /// to it (a frame without the stretch), the matched template is registered there again from
+    /// the estimate's pose, and that pose's origin and direction go to the robot frame through
+    /// the similarity. Without a matched template, the similarity alone maps the position
+    /// (the stretch cancelled to first order).
+    pub fn apply_part(&self, p: &crate::vision::PartEstimate, estimator: &crate::vision::Estimator) -> (f64, f64, f64) {
+        if matches!(self, Calibration::Scale(_)) || p.outline.len() < 8 {
+            return self.apply(p.x, p.y, p.angle_deg);
         }
-        let step = outline.len().div_ceil(256);
-        let (px, mm): (Vec<Vector2<f64>>, Vec<Vector2<f64>>) = outline
-            .iter()
-            .step_by(step)
-            .filter_map(|p| self.to_robot(p.x, p.y).map(|(u, v)| (Vector2::new(p.x, p.y), Vector2::new(u, v))))
-            .unzip();
-        if px.len() < 8 {
-            return self.apply(x, y, angle_deg);
+        let mapped: Vec<(Vector2<f64>, Vector2<f64>)> =
+            p.outline.iter().filter_map(|q| self.to_robot(q.x, q.y).map(|(u, v)| (Vector2::new(q.x, q.y), Vector2::new(u, v)))).collect();
+        if mapped.len() < 8 {
+            return self.apply(p.x, p.y, p.angle_deg);
         }
+        let step = mapped.len().div_ceil(256);
+        let (px, mm): (Vec<Vector2<f64>>, Vec<Vector2<f64>>) = mapped.iter().step_by(step).copied().unzip();
         let plain = crate::lens::similarity(&px, &mm, true, false);
         let mirrored = crate::lens::similarity(&px, &mm, true, true);
         let f = if mirrored.rms < plain.rms { mirrored } else { plain };
-        let at = f.apply(Vector2::new(x, y));
+        let (at, angle_deg) = match p.matched {
+            Some((entry, pose)) => {
+                let straight: Vec<Pt> = mapped
+                    .iter()
+                    .map(|(_, m)| {
+                        let r = f.invert(*m);
+                        Pt::new(r.x, r.y)
+                    })
+                    .collect();
+                let origin = estimator.templates().nth(entry).map(|t| t.origin);
+                match (origin, estimator.reregister(entry, &straight, pose)) {
+                    (Some(o), Some(again)) => {
+                        let at = again.apply(o);
+                        (Vector2::new(at.x, at.y), again.angle_deg())
+                    }
+                    _ => (Vector2::new(p.x, p.y), p.angle_deg),
+                }
+            }
+            None => (Vector2::new(p.x, p.y), p.angle_deg),
+        };
         let a = angle_deg.to_radians();
-        let ahead = f.apply(Vector2::new(x + a.cos(), y - a.sin()));
-        (at.x, at.y, (ahead.y - at.y).atan2(ahead.x - at.x).to_degrees())
+        let (m, ahead) = (f.apply(at), f.apply(at + Vector2::new(a.cos(), -a.sin())));
+        (m.x, m.y, (ahead.y - m.y).atan2(ahead.x - m.x).to_degrees())
     }
 
     /// One line for the start-up log.

@@ -231,6 +231,7 @@ impl Worker {
     }
 
     fn process(&mut self, acq_id: u16, frame: Result<super::source::Frame, SourceError>, t0: Instant) {
+        let estimator = self.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
         let mut debris = 0;
         let mut estimated = None;
         // A frame that came but could not be estimated is still worth archiving.
@@ -242,7 +243,9 @@ impl Worker {
                 self.note_error(e.to_string());
                 Outcome::Failed { fault }
             }
-            Ok(f) => match self.calibration_fits(&f.image).and_then(|()| self.estimate(&f.image).map_err(|e| e.to_string())) {
+            // One estimator for the estimate and its results: the template a result names is
+            // looked up again when its position is mapped (an enrolment may swap it meanwhile).
+            Ok(f) => match self.calibration_fits(&f.image).and_then(|()| self.estimate(&estimator, &f.image).map_err(|e| e.to_string())) {
                 Err(e) => {
                     tracing::warn!(camera = %self.name, acq_id, frame = %f.label, "frame error: {e}");
                     self.note_error(format!("{}: {e}", f.label));
@@ -250,7 +253,7 @@ impl Worker {
                     Outcome::Failed { fault: Fault::Frame }
                 }
                 Ok(fe) => {
-                    let parts = fe.parts.iter().map(|p| self.result(p)).collect();
+                    let parts = fe.parts.iter().map(|p| self.result(p, &estimator)).collect();
                     let processing_ms = fe.timings.total;
                     debris = fe.debris;
                     estimated = Some((Arc::new(f.image), f.label, fe));
@@ -349,15 +352,14 @@ impl Worker {
         }
     }
 
-    fn estimate(&self, img: &GrayImage) -> Result<FrameEstimate, crate::vision::FrameError> {
-        let estimator = self.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
-        estimate_in(&estimator, img, self.roi)
+    fn estimate(&self, estimator: &Estimator, img: &GrayImage) -> Result<FrameEstimate, crate::vision::FrameError> {
+        estimate_in(estimator, img, self.roi)
     }
 
     /// A part's result in the robot frame, as the estimate left it (the handshake makes the
     /// final one).
-    fn result(&self, p: &PartEstimate) -> PartResult {
-        let (x, y, a) = self.calibration.apply_part(p.x, p.y, p.angle_deg, &p.outline);
+    fn result(&self, p: &PartEstimate, estimator: &Estimator) -> PartResult {
+        let (x, y, a) = self.calibration.apply_part(p, estimator);
         PartResult {
             accepted: p.accepted,
             reason: p.reason,
@@ -495,12 +497,22 @@ fn estimate_in(estimator: &Estimator, img: &GrayImage, roi: Option<[usize; 4]>) 
     let misfit = crate::vision::FrameError::Roi { roi: [x, y, w, h], width: img.width, height: img.height };
     let crop = img.crop(x, y, w, h).filter(|c| c.width >= MIN_SIDE && c.height >= MIN_SIDE).ok_or(misfit)?;
     let mut fe = estimator.estimate(crop.view()?)?;
+    // Everything a part holds in pixels moves to the frame's: its position, outline, line
+    // features and the matched template's pose (the overlay draws them, a calibration
+    // registers the template again from that pose).
+    let shift = crate::vision::Pt::new(x as f64, y as f64);
     for p in &mut fe.parts {
-        p.x += x as f64;
-        p.y += y as f64;
+        p.x += shift.x;
+        p.y += shift.y;
         for q in &mut p.outline {
-            q.x += x as f64;
-            q.y += y as f64;
+            *q = *q + shift;
+        }
+        for s in p.segments.iter_mut().chain(p.axis.as_mut()) {
+            s.a = s.a + shift;
+            s.b = s.b + shift;
+        }
+        if let Some((_, pose)) = &mut p.matched {
+            pose.to = pose.to + shift;
         }
     }
     Ok(fe)
@@ -523,5 +535,24 @@ mod tests {
             let text = e.to_string();
             assert!(text.contains("region of interest") && text.contains("640 x 480"), "{text}");
         }
+    }
+
+    #[test]
+    fn a_part_found_in_a_roi_is_reported_in_frame_pixels_with_its_pose_and_lines() {
+        let sim = crate::sim::Simulator::new(crate::sim::SimConfig { width: 1296, height: 972, seed: 5, noise: None }).unwrap();
+        let estimator = Estimator::new(&sim.enrolled(&Params::default()).unwrap(), Params::default()).unwrap();
+        let scene = sim.scene_with(0, "clean").unwrap();
+        let whole = estimate_in(&estimator, &scene.image, None).unwrap();
+        let roi = [40, 30, 1296 - 40, 972 - 30];
+        let cut = estimate_in(&estimator, &scene.image, Some(roi)).unwrap();
+        let (a, b) = (&whole.parts[0], &cut.parts[0]);
+        assert!((a.x - b.x).abs() < 0.05 && (a.y - b.y).abs() < 0.05, "{} {} vs {} {}", a.x, a.y, b.x, b.y);
+        let origin = |p: &PartEstimate| {
+            let (i, pose) = p.matched.unwrap();
+            pose.apply(estimator.templates().nth(i).unwrap().origin)
+        };
+        assert!((origin(a) - origin(b)).norm() < 0.05, "the matched pose moved with the ROI");
+        let (sa, sb) = (a.axis.unwrap(), b.axis.unwrap());
+        assert!((sa.a - sb.a).norm() < 0.5, "{sa:?} vs {sb:?}");
     }
 }

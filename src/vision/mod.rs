@@ -487,6 +487,21 @@ impl Estimator {
         self.lib.entries.iter().map(|e| &e.template)
     }
 
+    /// Registers template `entry` again onto `outline` given in another frame of the same scale
+    /// (a calibration's rectified view of the part), from `init`: the pose, template pixels to
+    /// that frame. None when `entry` is not a template of this estimator or the outline is too
+    /// short to register.
+    pub fn reregister(&self, entry: usize, outline: &[Pt], init: Similarity) -> Option<Similarity> {
+        let e = self.lib.entries.get(entry)?;
+        if outline.len() < 16 {
+            return None;
+        }
+        let tolerance = self.params.fit_tolerance + self.params.fit_tolerance_rel * e.template.rms_radius();
+        let reg = register::register(outline, &e.index, init, tolerance, 1);
+        let p = reg.pose;
+        (p.to.x.is_finite() && p.to.y.is_finite() && p.angle_rad.is_finite() && p.scale.is_finite()).then_some(p)
+    }
+
     /// Estimates every part in the frame.
     pub fn estimate(&self, frame: GrayView<'_>) -> Result<FrameEstimate, FrameError> {
         let t0 = Instant::now();
