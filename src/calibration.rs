@@ -310,9 +310,7 @@ impl Calibration {
         }
         let step = mapped.len().div_ceil(256);
         let (px, mm): (Vec<Vector2<f64>>, Vec<Vector2<f64>>) = mapped.iter().step_by(step).copied().unzip();
-        let plain = crate::lens::similarity(&px, &mm, true, false);
-        let mirrored = crate::lens::similarity(&px, &mm, true, true);
-        let f = if mirrored.rms < plain.rms { mirrored } else { plain };
+        let f = crate::lens::either_hand(&px, &mm, true);
         let (at, angle_deg) = match p.matched {
             Some((entry, pose)) => {
                 let straight: Vec<Pt> = mapped
@@ -415,11 +413,7 @@ pub fn place_in_robot_frame(
     if !(major > 1.0 && minor > 0.05 * major) {
         return Err(CalibrationError::Collinear);
     }
-    let fit = |a: &[Vector2<f64>], b: &[Vector2<f64>]| {
-        let s = crate::lens::similarity(a, b, scaled, false);
-        let m = crate::lens::similarity(a, b, scaled, true);
-        if m.rms < s.rms { m } else { s }
-    };
+    let fit = |a: &[Vector2<f64>], b: &[Vector2<f64>]| crate::lens::either_hand(a, b, scaled);
     let best = fit(&plate, &robot);
     let residuals: Vec<f64> = plate.iter().zip(&robot).map(|(p, r)| (best.apply(*p) - r).norm()).collect();
     if residuals.iter().any(|&e| e > limit_mm) {

@@ -361,10 +361,15 @@ fn levenberg_marquardt(mut x: DVector<f64>, f: &dyn Fn(&DVector<f64>) -> DVector
 /// The rotation (radians), shift and mirror that best carry points `a` onto `b` (least squares,
 /// unit scale): Kabsch in the plane, both handednesses tried.
 pub fn procrustes(a: &[Vector2<f64>], b: &[Vector2<f64>]) -> (f64, Vector2<f64>, bool) {
-    let s = similarity(a, b, false, false);
-    let m = similarity(a, b, false, true);
-    let pick = if m.rms < s.rms { m } else { s };
+    let pick = either_hand(a, b, false);
     (pick.angle, pick.shift, pick.mirrored)
+}
+
+/// [`similarity`] with the hand (mirrored or not) that fits better.
+pub fn either_hand(a: &[Vector2<f64>], b: &[Vector2<f64>], scaled: bool) -> Similarity {
+    let plain = similarity(a, b, scaled, false);
+    let mirrored = similarity(a, b, scaled, true);
+    if mirrored.rms < plain.rms { mirrored } else { plain }
 }
 
 /// A plane-to-plane similarity: optional mirror (y negated first), rotation, scale, shift.

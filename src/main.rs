@@ -341,24 +341,18 @@ fn simulate(out: &Path, count: u64, cfg: SimConfig, cell: bool) -> Result<ExitCo
 fn write_plates(sim: &Simulator, dir: &Path) -> Result<()> {
     use lfi_bridge::plate::Grid;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let optics = sim.optics().context("plates need the cell's camera")?;
     let mut index = Vec::new();
     for grid in [Grid::Circles, Grid::AsymmetricCircles, Grid::Chessboard] {
         let (img, plate) = sim.plate(grid, 0.6)?;
         let name = format!("{}.png", grid.as_str());
         imageio::write_png(&dir.join(&name), &img)?;
-        let pts = plate.points();
         let (c, r) = (plate.cols, plate.rows);
-        let touch: Vec<[f64; 4]> = [c + 1, 2 * c - 2, (r - 2) * c + 1, (r - 1) * c - 2]
+        let touch = plate
+            .corner_marks()
             .iter()
-            .map(|&i| {
-                let flat = plate.to_belt(pts[i]) * sim.px_per_mm();
-                let flat = Pt::new(flat.x, flat.y);
-                let (px, mm) = (optics.to_frame(flat), optics.to_robot(flat));
-                let r = |v: f64| (v * 1000.0).round() / 1000.0;
-                [r(px.x), r(px.y), r(mm.x), r(mm.y)]
-            })
-            .collect();
+            .map(|&i| sim.touch_up(&plate, i).map(|t| t.map(|v| (v * 1000.0).round() / 1000.0)))
+            .collect::<Option<Vec<[f64; 4]>>>()
+            .context("plates need the cell's camera")?;
         index.push(serde_json::json!({
             "image": name, "grid": grid.as_str(), "cols": c, "rows": r, "pitch_mm": plate.pitch_mm, "touch_ups": touch,
         }));

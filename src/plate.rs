@@ -167,34 +167,32 @@ fn refine_dots(frame: &GrayImage, pts: &[Vector2<f64>]) -> Vec<Vector2<f64>> {
             for _ in 0..2 {
                 let (x0, x1) = (((c.x - r).floor() as i64).max(0), ((c.x + r).ceil() as i64).min(w - 1));
                 let (y0, y1) = (((c.y - r).floor() as i64).max(0), ((c.y + r).ceil() as i64).min(h - 1));
-                // The plate's white: the window's brightest decile; the dot's black: its darkest.
-                let mut vals: Vec<u8> = Vec::new();
+                // The window's pixels: the plate's white is their brightest twentieth, the dot's
+                // black their darkest.
+                let mut window: Vec<(f64, f64, f64)> = Vec::new();
                 for y in y0..=y1 {
                     for x in x0..=x1 {
-                        if ((x as f64 - c.x).powi(2) + (y as f64 - c.y).powi(2)) <= r * r {
-                            vals.push(frame.data[(y * w + x) as usize]);
+                        let (fx, fy) = (x as f64, y as f64);
+                        if (fx - c.x).powi(2) + (fy - c.y).powi(2) <= r * r {
+                            window.push((fx, fy, frame.data[(y * w + x) as usize] as f64));
                         }
                     }
                 }
-                if vals.len() < 9 {
+                if window.len() < 9 {
                     return c0;
                 }
-                vals.sort_unstable();
-                let (dark, white) = (vals[vals.len() / 20] as f64, vals[vals.len() * 19 / 20] as f64);
+                let mut vals: Vec<f64> = window.iter().map(|p| p.2).collect();
+                vals.sort_unstable_by(f64::total_cmp);
+                let (dark, white) = (vals[vals.len() / 20], vals[vals.len() * 19 / 20]);
                 if white - dark < 10.0 {
                     return c0;
                 }
                 let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
-                for y in y0..=y1 {
-                    for x in x0..=x1 {
-                        if ((x as f64 - c.x).powi(2) + (y as f64 - c.y).powi(2)) <= r * r {
-                            let v = frame.data[(y * w + x) as usize] as f64;
-                            let wgt = ((white - v) / (white - dark)).clamp(0.0, 1.0);
-                            sw += wgt;
-                            sx += wgt * x as f64;
-                            sy += wgt * y as f64;
-                        }
-                    }
+                for &(x, y, v) in &window {
+                    let wgt = ((white - v) / (white - dark)).clamp(0.0, 1.0);
+                    sw += wgt;
+                    sx += wgt * x;
+                    sy += wgt * y;
                 }
                 if sw <= 0.0 {
                     return c0;

@@ -33,21 +33,7 @@ fn spec(plate: &Plate) -> GridSpec {
 
 /// Grid points as a robot touches them up: their true pixels and robot millimetres.
 fn touch_ups(sim: &Simulator, plate: &Plate, which: &[usize]) -> Vec<[f64; 4]> {
-    let pts = plate.points();
-    which
-        .iter()
-        .map(|&i| {
-            let px = sim.belt_to_frame(plate.to_belt(pts[i]));
-            let mm = sim.frame_to_robot(px).unwrap();
-            [px.x, px.y, mm.x, mm.y]
-        })
-        .collect()
-}
-
-/// Four grid points one in from the plate's corners.
-fn corner_marks(plate: &Plate) -> Vec<usize> {
-    let (c, r) = (plate.cols, plate.rows);
-    vec![c + 1, 2 * c - 2, (r - 2) * c + 1, (r - 1) * c - 2]
+    which.iter().map(|&i| sim.touch_up(plate, i).unwrap()).collect()
 }
 
 fn calibrated(sim: &Simulator, grid: Grid) -> (PlateFit, Plate) {
@@ -158,7 +144,7 @@ fn robot_millimetres_over_the_whole_field_are_within_hundredths_where_a_homograp
         let (fit, plate) = calibrated(&sim, grid);
         let file = dir.path().join(format!("{}.toml", grid.as_str()));
         std::fs::write(&file, plate_file(&fit, &plate).to_toml().unwrap()).unwrap();
-        let marks = touch_ups(&sim, &plate, &corner_marks(&plate));
+        let marks = touch_ups(&sim, &plate, &plate.corner_marks());
         let cal =
             Calibration::from_config(&CalibrationConfig::Plate { file, points: marks.clone(), scaled: true, max_point_error_mm: 0.5 })
                 .unwrap();
@@ -257,7 +243,7 @@ fn calibrate_and_map_on_the_command_line_agree_with_the_simulators_truth() {
     let (ok, _, err) = bin(&[&args[..], &["belt.png"]].concat(), dir.path());
     assert!(!ok && err.contains("belt.png") && err.contains("no image showed"), "{err}");
 
-    std::fs::write(dir.path().join("cell.toml"), cell_config(8, 1, &touch_ups(&sim, &plate, &corner_marks(&plate)))).unwrap();
+    std::fs::write(dir.path().join("cell.toml"), cell_config(8, 1, &touch_ups(&sim, &plate, &plate.corner_marks()))).unwrap();
     let mut points = Vec::new();
     let mut truth = Vec::new();
     for i in 0..9 {
@@ -291,7 +277,7 @@ async fn a_calibrated_camera_serves_part_positions_in_robot_millimetres() {
     let dir = tempfile::tempdir().unwrap();
     let (_, plate) = calibration_file(&sim, Grid::Circles, dir.path());
     let path = dir.path().join("cell.toml");
-    std::fs::write(&path, cell_config(9, SCENES, &touch_ups(&sim, &plate, &corner_marks(&plate)))).unwrap();
+    std::fs::write(&path, cell_config(9, SCENES, &touch_ups(&sim, &plate, &plate.corner_marks()))).unwrap();
     let cfg = lfi_bridge::config::Config::load(&path).unwrap();
     let running = start(&cfg).await;
     let mut ctx = plc(running.modbus_addr, 1).await;
@@ -341,7 +327,7 @@ fn registering_the_template_again_in_the_plane_cancels_the_stretch_of_lens_and_t
     let sim = cell(9);
     let dir = tempfile::tempdir().unwrap();
     let (file, plate) = calibration_file(&sim, Grid::Circles, dir.path());
-    let marks = touch_ups(&sim, &plate, &corner_marks(&plate));
+    let marks = touch_ups(&sim, &plate, &plate.corner_marks());
     let cal = Calibration::from_config(&CalibrationConfig::Plate { file, points: marks, scaled: true, max_point_error_mm: 0.5 }).unwrap();
     let params = Params::default();
     let est = Estimator::new(&sim.enrolled(&params).unwrap(), params).unwrap();

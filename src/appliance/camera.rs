@@ -245,21 +245,24 @@ impl Worker {
             }
             // One estimator for the estimate and its results: the template a result names is
             // looked up again when its position is mapped (an enrolment may swap it meanwhile).
-            Ok(f) => match self.calibration_fits(&f.image).and_then(|()| self.estimate(&estimator, &f.image).map_err(|e| e.to_string())) {
-                Err(e) => {
-                    tracing::warn!(camera = %self.name, acq_id, frame = %f.label, "frame error: {e}");
-                    self.note_error(format!("{}: {e}", f.label));
-                    unusable = Some((Arc::new(f.image), f.label, e.to_string()));
-                    Outcome::Failed { fault: Fault::Frame }
+            Ok(f) => {
+                match self.calibration_fits(&f.image).and_then(|()| estimate_in(&estimator, &f.image, self.roi).map_err(|e| e.to_string()))
+                {
+                    Err(e) => {
+                        tracing::warn!(camera = %self.name, acq_id, frame = %f.label, "frame error: {e}");
+                        self.note_error(format!("{}: {e}", f.label));
+                        unusable = Some((Arc::new(f.image), f.label, e.to_string()));
+                        Outcome::Failed { fault: Fault::Frame }
+                    }
+                    Ok(fe) => {
+                        let parts = fe.parts.iter().map(|p| self.result(p, &estimator)).collect();
+                        let processing_ms = fe.timings.total;
+                        debris = fe.debris;
+                        estimated = Some((Arc::new(f.image), f.label, fe));
+                        Outcome::Parts { parts, processing_ms }
+                    }
                 }
-                Ok(fe) => {
-                    let parts = fe.parts.iter().map(|p| self.result(p, &estimator)).collect();
-                    let processing_ms = fe.timings.total;
-                    debris = fe.debris;
-                    estimated = Some((Arc::new(f.image), f.label, fe));
-                    Outcome::Parts { parts, processing_ms }
-                }
-            },
+            }
         };
         let results = {
             let mut hs = self.handshake.lock().unwrap_or_else(|p| p.into_inner());
@@ -350,10 +353,6 @@ impl Worker {
             )),
             _ => Ok(()),
         }
-    }
-
-    fn estimate(&self, estimator: &Estimator, img: &GrayImage) -> Result<FrameEstimate, crate::vision::FrameError> {
-        estimate_in(estimator, img, self.roi)
     }
 
     /// A part's result in the robot frame, as the estimate left it (the handshake makes the

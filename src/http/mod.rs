@@ -388,59 +388,55 @@ struct GridQuery {
 
 async fn frame_jpg(State(state): State<AppState>, Path(unit): Path<u8>, Query(q): Query<GridQuery>) -> Result<Response, Failure> {
     let cam = camera(&state, unit)?;
+    let jpeg = |bytes| ([(header::CONTENT_TYPE, "image/jpeg"), (header::CACHE_CONTROL, "no-store")], bytes).into_response();
+    let snapshot = || {
+        let live = cam.live.lock().unwrap_or_else(|p| p.into_inner());
+        (live.frame.clone(), live.estimate.clone(), live.seq)
+    };
     if q.grid {
-        return frame_with_grid(cam).await;
+        // Drawn for each request: only a commissioning engineer asks for it.
+        let (frame, estimate, _) = snapshot();
+        let calibration = cam.job.lock().unwrap_or_else(|p| p.into_inner()).calibration.clone();
+        return Ok(jpeg(live_picture(cam, frame, estimate, Some(calibration)).await?));
     }
     let slot = state.cameras.iter().position(|c| std::ptr::eq(c, cam)).and_then(|i| state.pictures.get(i));
     let slot = slot.ok_or((StatusCode::INTERNAL_SERVER_ERROR, "no picture slot for this camera".to_string()))?;
     let mut cached = slot.lock().await;
-    let (frame, estimate, seq) = {
-        let live = cam.live.lock().unwrap_or_else(|p| p.into_inner());
-        (live.frame.clone(), live.estimate.clone(), live.seq)
-    };
+    let (frame, estimate, seq) = snapshot();
     let bytes = match cached.as_ref() {
         Some((s, b)) if *s == seq => b.clone(),
         _ => {
-            let (Some(frame), Some(estimate)) = (frame, estimate) else { return Err((StatusCode::NOT_FOUND, "no frame yet".into())) };
-            let estimator = cam.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
-            let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, Failure> {
-                let scale = (960.0 / frame.width as f64).min(1.0);
-                let view = frame.view().map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
-                let pic = crate::overlay::draw(view, &estimate, &estimator, scale)
-                    .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
-                crate::imageio::encode_mat(&pic, ".jpg").map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e))
-            })
-            .await
-            .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
-            let bytes = axum::body::Bytes::from(bytes);
+            let bytes = live_picture(cam, frame, estimate, None).await?;
             *cached = Some((seq, bytes.clone()));
             bytes
         }
     };
-    Ok(([(header::CONTENT_TYPE, "image/jpeg"), (header::CACHE_CONTROL, "no-store")], bytes).into_response())
+    Ok(jpeg(bytes))
 }
 
-/// The latest frame with its parts and the calibration's grid of robot millimetres (drawn for
-/// each request: only a commissioning engineer asks for it).
-async fn frame_with_grid(cam: &CameraHandle) -> Result<Response, Failure> {
-    let (frame, estimate) = {
-        let live = cam.live.lock().unwrap_or_else(|p| p.into_inner());
-        (live.frame.clone(), live.estimate.clone())
-    };
+/// The latest frame as a JPEG at most 960 px wide, its parts drawn, and with `grid` the
+/// calibration's lines of constant robot X and Y.
+async fn live_picture(
+    cam: &CameraHandle,
+    frame: Option<Arc<crate::vision::GrayImage>>,
+    estimate: Option<crate::vision::FrameEstimate>,
+    grid: Option<crate::calibration::Calibration>,
+) -> Result<axum::body::Bytes, Failure> {
     let (Some(frame), Some(estimate)) = (frame, estimate) else { return Err((StatusCode::NOT_FOUND, "no frame yet".into())) };
     let estimator = cam.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
-    let calibration = cam.job.lock().unwrap_or_else(|p| p.into_inner()).calibration.clone();
     let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, Failure> {
         let fail = |e: opencv::Error| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string());
         let scale = (960.0 / frame.width as f64).min(1.0);
         let view = frame.view().map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
         let mut pic = crate::overlay::draw(view, &estimate, &estimator, scale).map_err(fail)?;
-        crate::overlay::draw_grid(&mut pic, &calibration, frame.width, frame.height, scale).map_err(fail)?;
+        if let Some(c) = &grid {
+            crate::overlay::draw_grid(&mut pic, c, frame.width, frame.height, scale).map_err(fail)?;
+        }
         crate::imageio::encode_mat(&pic, ".jpg").map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e))
     })
     .await
     .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
-    Ok(([(header::CONTENT_TYPE, "image/jpeg"), (header::CACHE_CONTROL, "no-store")], bytes).into_response())
+    Ok(axum::body::Bytes::from(bytes))
 }
 
 #[derive(Serialize)]

@@ -187,6 +187,14 @@ impl Simulator {
         self.optics.as_ref().map_or(flat, |o| o.to_frame(flat))
     }
 
+    /// Grid point `index` of `plate` as a robot touches it up: `[x_px, y_px, x_mm, y_mm]`, its
+    /// true pixel and robot millimetres (None without the cell's camera or past the grid).
+    pub fn touch_up(&self, plate: &optics::Plate, index: usize) -> Option<[f64; 4]> {
+        let px = self.belt_to_frame(plate.to_belt(*plate.points().get(index)?));
+        let mm = self.frame_to_robot(px)?;
+        Some([px.x, px.y, mm.x, mm.y])
+    }
+
     /// The robot millimetres a frame pixel truly shows (None without the cell's camera).
     pub fn frame_to_robot(&self, px: Pt) -> Option<nalgebra::Vector2<f64>> {
         let o = self.optics.as_ref()?;

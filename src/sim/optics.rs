@@ -206,6 +206,12 @@ impl Plate {
         Vector2::new(c * p.x - s * p.y, s * p.x + c * p.y) + self.origin_mm
     }
 
+    /// Four grid points one in from the plate's corners: where a robot touches it up.
+    pub fn corner_marks(&self) -> [usize; 4] {
+        let (c, r) = (self.cols, self.rows);
+        [c + 1, 2 * c - 2, (r - 2) * c + 1, (r - 1) * c - 2]
+    }
+
     /// The grid points, plate mm, in the grid finder's order.
     pub fn points(&self) -> Vec<Vector2<f64>> {
         self.grid.points(self.cols, self.rows, self.pitch_mm)
