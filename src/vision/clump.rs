@@ -662,7 +662,7 @@ pub fn interior_edges(coarse: &Coarse, outline: &[Pt], noise: f64, contrast: f64
                 continue;
             }
             let p = Pt::new(u as f64 * f + (f - 1.0) / 2.0, v as f64 * f + (f - 1.0) / 2.0);
-            if !contains(&poly, p) || index.nearest(p, INTERIOR_MARGIN).is_some() {
+            if !contains(&poly, p) || index.any_within(p, INTERIOR_MARGIN) {
                 continue;
             }
             let Some(g) = test.gradient(p) else { continue };
@@ -715,7 +715,7 @@ fn support(model: &ShapeModel, pose: &Similarity, ext: &OutlineIndex, edge: &Edg
     for &(m, nm) in model.verify.iter().step_by(stride) {
         let at = to_frame.apply(m);
         n += 1;
-        if ext.nearest(at, tol * pose.scale).is_some() || edge.shows(at, turn.apply(nm)) {
+        if ext.any_within(at, tol * pose.scale) || edge.shows(at, turn.apply(nm)) {
             seen += 1;
         }
     }

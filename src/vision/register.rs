@@ -127,6 +127,9 @@ impl Grid {
 #[derive(Debug, Clone)]
 pub struct OutlineIndex {
     pts: Vec<Pt>,
+    /// Segment i (pts[i] -> pts[i+1]) ready for the distance of a point: the innermost loop of
+    /// registration and verification, spared a division, a modulo and a square root per segment.
+    segs: Vec<Seg>,
     /// Outward unit normal of segment i (pts[i] -> pts[i+1]).
     normals: Vec<Pt>,
     lens: Vec<f64>,
@@ -160,13 +163,16 @@ impl OutlineIndex {
         let sign = if area > 0.0 { 1.0 } else { -1.0 };
         let mut normals = Vec::with_capacity(n);
         let mut lens = Vec::with_capacity(n);
+        let mut segs = Vec::with_capacity(n);
         for i in 0..n {
             let e = outline[(i + 1) % n] - outline[i];
             let l = e.norm().max(1e-12);
             normals.push(Pt::new(e.y / l * sign, -e.x / l * sign));
             lens.push(l);
+            let l2 = e.dot(e);
+            segs.push(Seg { a: outline[i], ab: e, inv_l2: if l2 > 0.0 { 1.0 / l2 } else { 0.0 } });
         }
-        Self { pts: outline.to_vec(), normals, lens, grids }
+        Self { pts: outline.to_vec(), segs, normals, lens, grids }
     }
 
     /// The outline indexed.
@@ -185,19 +191,46 @@ impl OutlineIndex {
         // within its reach of a cell, so the answer is the same from any of them, only found
         // sooner.
         let grid = self.grids.iter().find(|g| reach <= g.reach).or(self.grids.last())?;
-        let n = self.pts.len();
-        let mut best: Option<(usize, f64, Pt)> = None;
+        // Squared distances throughout; the one square root is the answer's.
+        let (mut best, mut best_d2, mut foot) = (usize::MAX, reach * reach, Pt::new(0.0, 0.0));
         for &i in grid.candidates(q) {
-            let i = i as usize;
-            let a = self.pts[i];
-            let b = self.pts[(i + 1) % n];
-            let (d, t) = point_segment(q, a, b);
-            if d <= reach && best.is_none_or(|(_, bd, _)| d < bd) {
-                best = Some((i, d, a + (b - a).scale(t)));
+            let s = &self.segs[i as usize];
+            let aq = q - s.a;
+            let t = (aq.dot(s.ab) * s.inv_l2).clamp(0.0, 1.0);
+            let f = s.a + s.ab.scale(t);
+            let (dx, dy) = (f.x - q.x, f.y - q.y);
+            let d2 = dx * dx + dy * dy;
+            if d2 < best_d2 || d2 == best_d2 && best == usize::MAX {
+                (best, best_d2, foot) = (i as usize, d2, f);
             }
         }
-        best
+        (best != usize::MAX).then(|| (best, best_d2.sqrt(), foot))
     }
+}
+
+impl OutlineIndex {
+    /// Whether any segment lies within `reach` of `q` (at most [`MAX_REACH`]): the verification's
+    /// question, answered at the first segment that is near enough.
+    pub fn any_within(&self, q: Pt, reach: f64) -> bool {
+        let Some(grid) = self.grids.iter().find(|g| reach <= g.reach).or(self.grids.last()) else { return false };
+        let r2 = reach * reach;
+        grid.candidates(q).iter().any(|&i| {
+            let s = &self.segs[i as usize];
+            let t = ((q - s.a).dot(s.ab) * s.inv_l2).clamp(0.0, 1.0);
+            let f = s.a + s.ab.scale(t);
+            let (dx, dy) = (f.x - q.x, f.y - q.y);
+            dx * dx + dy * dy <= r2
+        })
+    }
+}
+
+/// A segment of an indexed outline: its start, its vector and the inverse of its squared length
+/// (0 for a degenerate one, whose nearest point is its start).
+#[derive(Debug, Clone, Copy)]
+struct Seg {
+    a: Pt,
+    ab: Pt,
+    inv_l2: f64,
 }
 
 /// Outcome of a registration.
@@ -436,7 +469,8 @@ mod tests {
         }
     }
 
-    /// Pruned (a template's) or not (a frame's): the grids must answer as brute force does.
+    /// Pruned (a template's) or not (a frame's): the grids must answer as brute force does, the
+    /// nearest segment and whether any lies within reach.
     fn nearest_is_brute_force(t: &[Pt], idx: &OutlineIndex) {
         let n = t.len();
         let mut seed = 12345u64;
@@ -452,6 +486,7 @@ mod tests {
                     .filter(|&(_, d)| d <= reach)
                     .min_by(|a, b| a.1.total_cmp(&b.1));
                 let got = idx.nearest(q, reach).map(|(i, d, _)| (i, d));
+                assert_eq!(idx.any_within(q, reach), brute.is_some(), "{q:?} reach {reach}: any_within");
                 match (brute, got) {
                     (None, None) => {}
                     (Some((_, bd)), Some((_, gd))) => assert!((bd - gd).abs() < 1e-9, "{q:?} reach {reach}: {bd} vs {gd}"),
