@@ -10,6 +10,7 @@
 
 use super::geometry::{Pt, Similarity, point_segment};
 use nalgebra::{Matrix4, Vector4};
+use std::sync::OnceLock;
 
 /// Correspondences farther than this (template pixels) are never looked for.
 pub const MAX_REACH: f64 = 24.0;
@@ -25,7 +26,6 @@ const MID_REACH: f64 = 12.0;
 /// more allocations than the queries it served.
 #[derive(Debug, Clone)]
 struct Grid {
-    reach: f64,
     cell: f64,
     origin: Pt,
     cols: usize,
@@ -107,7 +107,7 @@ impl Grid {
             items.truncate(kept);
             items.shrink_to_fit();
         }
-        Self { reach, cell, origin, cols, rows, starts, items }
+        Self { cell, origin, cols, rows, starts, items }
     }
 
     fn candidates(&self, q: Pt) -> &[u32] {
@@ -133,15 +133,39 @@ pub struct OutlineIndex {
     /// Outward unit normal of segment i (pts[i] -> pts[i+1]).
     normals: Vec<Pt>,
     lens: Vec<f64>,
-    /// By increasing reach; a query uses the first that reaches as far.
-    grids: Vec<Grid>,
+    /// By increasing reach; a query uses the first that reaches as far. Built when first asked
+    /// for: a region's outline is indexed for every frame, and most frames' queries never look
+    /// as far as the coarse grid reaches (it cost a tenth of a touching pair's instructions).
+    grids: Vec<LazyGrid>,
+}
+
+/// A grid's shape, and the grid once some query needed it.
+#[derive(Debug, Clone)]
+struct LazyGrid {
+    reach: f64,
+    cell: f64,
+    prune: bool,
+    grid: OnceLock<Grid>,
+}
+
+impl LazyGrid {
+    fn new(reach: f64, cell: f64, prune: bool) -> Self {
+        Self { reach, cell, prune, grid: OnceLock::new() }
+    }
+
+    fn get(&self, outline: &[Pt]) -> &Grid {
+        self.grid.get_or_init(|| Grid::new(outline, self.reach, self.cell, self.prune))
+    }
 }
 
 impl OutlineIndex {
     /// An index of a template's closed outline (template pixels), built once and queried for
     /// every part of every frame: one grid pruned to the segments that can be nearest.
     pub fn new(outline: &[Pt]) -> Self {
-        Self::with_grids(outline, vec![Grid::new(outline, MAX_REACH, 4.0, true)])
+        let index = Self::with_grids(outline, vec![LazyGrid::new(MAX_REACH, 4.0, true)]);
+        // Built now, once, not in the first frame's time.
+        index.grids[0].get(&index.pts);
+        index
     }
 
     /// An index of an outline found in a frame, queried a few thousand times: cheap to build
@@ -150,14 +174,14 @@ impl OutlineIndex {
         Self::with_grids(
             outline,
             vec![
-                Grid::new(outline, NEAR_REACH, 4.0, false),
-                Grid::new(outline, MID_REACH, 4.0, false),
-                Grid::new(outline, MAX_REACH, 8.0, false),
+                LazyGrid::new(NEAR_REACH, 4.0, false),
+                LazyGrid::new(MID_REACH, 4.0, false),
+                LazyGrid::new(MAX_REACH, 8.0, false),
             ],
         )
     }
 
-    fn with_grids(outline: &[Pt], grids: Vec<Grid>) -> Self {
+    fn with_grids(outline: &[Pt], grids: Vec<LazyGrid>) -> Self {
         let n = outline.len();
         let (area, _) = super::geometry::area_centroid(outline);
         let sign = if area > 0.0 { 1.0 } else { -1.0 };
@@ -185,12 +209,17 @@ impl OutlineIndex {
         self.normals[i]
     }
 
+    /// The first grid that reaches as far as `reach`: each holds every segment that can be the
+    /// nearest within its reach of a cell, so the answer is the same from any of them, only
+    /// found sooner.
+    fn grid(&self, reach: f64) -> Option<&Grid> {
+        let lazy = self.grids.iter().find(|g| reach <= g.reach).or(self.grids.last())?;
+        Some(lazy.get(&self.pts))
+    }
+
     /// Nearest segment to `q` within `reach` (at most [`MAX_REACH`]): (segment, distance, foot).
     pub fn nearest(&self, q: Pt, reach: f64) -> Option<(usize, f64, Pt)> {
-        // The first grid that reaches as far: each holds every segment that can be the nearest
-        // within its reach of a cell, so the answer is the same from any of them, only found
-        // sooner.
-        let grid = self.grids.iter().find(|g| reach <= g.reach).or(self.grids.last())?;
+        let grid = self.grid(reach)?;
         // Squared distances throughout; the one square root is the answer's.
         let (mut best, mut best_d2, mut foot) = (usize::MAX, reach * reach, Pt::new(0.0, 0.0));
         for &i in grid.candidates(q) {
@@ -212,7 +241,7 @@ impl OutlineIndex {
     /// Whether any segment lies within `reach` of `q` (at most [`MAX_REACH`]): the verification's
     /// question, answered at the first segment that is near enough.
     pub fn any_within(&self, q: Pt, reach: f64) -> bool {
-        let Some(grid) = self.grids.iter().find(|g| reach <= g.reach).or(self.grids.last()) else { return false };
+        let Some(grid) = self.grid(reach) else { return false };
         let r2 = reach * reach;
         grid.candidates(q).iter().any(|&i| {
             let s = &self.segs[i as usize];
