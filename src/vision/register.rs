@@ -173,11 +173,7 @@ impl OutlineIndex {
     pub fn of_frame(outline: &[Pt]) -> Self {
         Self::with_grids(
             outline,
-            vec![
-                LazyGrid::new(NEAR_REACH, 4.0, false),
-                LazyGrid::new(MID_REACH, 4.0, false),
-                LazyGrid::new(MAX_REACH, 8.0, false),
-            ],
+            vec![LazyGrid::new(NEAR_REACH, 4.0, false), LazyGrid::new(MID_REACH, 4.0, false), LazyGrid::new(MAX_REACH, 8.0, false)],
         )
     }
 
