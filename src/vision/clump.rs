@@ -160,26 +160,31 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         return Explained::default();
     }
     let (lo, hi) = bounds(region.outline);
-    let mut hyps: Vec<(usize, Similarity, u32)> = Vec::new();
-    let voting = std::time::Instant::now();
     let mut acc = Accumulator::new(lo, hi);
-    for (ei, e) in lib.entries.iter().enumerate() {
-        for (pose, votes) in vote(&mut acc, &e.shape, e.template.centroid, &scene) {
-            hyps.push((ei, pose, votes));
+    let mut vote_ms = 0.0;
+    let mut hypotheses = |scene: &[(Pt, usize, i32)], vote_ms: &mut f64| {
+        let voting = std::time::Instant::now();
+        let mut hyps: Vec<(usize, Similarity, u32)> = Vec::new();
+        for (ei, e) in lib.entries.iter().enumerate() {
+            for (pose, votes) in vote(&mut acc, &e.shape, e.template.centroid, scene) {
+                hyps.push((ei, pose, votes));
+            }
         }
-    }
-    // Stronger evidence first: votes as a fraction of the template's voting points.
-    hyps.sort_by(|a, b| {
-        let fa = a.2 as f64 / lib.entries[a.0].shape.vote.len() as f64;
-        let fb = b.2 as f64 / lib.entries[b.0].shape.vote.len() as f64;
-        fb.total_cmp(&fa)
-    });
-    hyps.truncate(MAX_HYPOTHESES);
-    let vote_ms = voting.elapsed().as_secs_f64() * 1e3;
+        // Stronger evidence first: votes as a fraction of the template's voting points.
+        hyps.sort_by(|a, b| {
+            let fa = a.2 as f64 / lib.entries[a.0].shape.vote.len() as f64;
+            let fb = b.2 as f64 / lib.entries[b.0].shape.vote.len() as f64;
+            fb.total_cmp(&fa)
+        });
+        hyps.truncate(MAX_HYPOTHESES);
+        *vote_ms += voting.elapsed().as_secs_f64() * 1e3;
+        hyps
+    };
+    let hyps = hypotheses(&scene, &mut vote_ms);
     let ext = OutlineIndex::of_frame(region.outline);
     let edge = EdgeTest::new(region.coarse, region.noise, region.contrast);
     let mut found: Vec<Found> = Vec::new();
-    for (ei, init, _) in hyps {
+    let look = |found: &[Found], ei: usize, init: Similarity| -> Option<Found> {
         let e = &lib.entries[ei];
         let tol = tolerance(ei);
         // A mostly round part votes for its centroid from every rotation alike, and only its
@@ -199,30 +204,78 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             f.entry == ei && (f.reg.pose.to - init.to).norm() < 20.0 && angle_diff_deg(f.reg.pose.angle_deg(), init.angle_deg()).abs() < 4.0
         });
         if duplicate || support(&e.shape, &init, &ext, &edge, 2.0 * tol, 4) < MIN_SUPPORT - 0.2 {
-            continue;
+            return None;
         }
         // Registration on the stretch of the region's outline the part can reach: the rest is
         // its neighbours', and costs correspondence searches that find nothing.
         let reach = e.shape.radius * 1.2 + 2.0 * register::MAX_REACH;
         let local: Vec<Pt> = region.outline.iter().copied().filter(|p| (*p - init.to).norm() <= reach).collect();
         if local.len() < 16 {
-            continue;
+            return None;
         }
         let rough = register::register(&local, &e.index, init, tol, 4);
         if support(&e.shape, &rough.pose, &ext, &edge, tol, 3) < MIN_SUPPORT - 0.05 {
-            continue;
+            return None;
         }
         let reg = register::register(&local, &e.index, rough.pose, tol, 2);
         let (support, points) = verify(&e.shape, &reg.pose, &ext, &edge, tol);
-        if support < MIN_SUPPORT {
-            continue;
+        (support >= MIN_SUPPORT).then_some(Found {
+            entry: ei,
+            reg,
+            tolerance: tol,
+            support,
+            under: None,
+            order_unclear: false,
+            rival: None,
+            points,
+        })
+    };
+    for (ei, init, _) in hyps {
+        if let Some(part) = look(&found, ei, init) {
+            found.push(part);
         }
-        found.push(Found { entry: ei, reg, tolerance: tol, support, under: None, order_unclear: false, rival: None, points });
+    }
+    // A part whose outline shows less than its neighbour's may not make the first vote's
+    // strongest peaks at all: the neighbour's outline votes for that neighbour again from every
+    // face and type alike. The stretch of the region's outline that no part found explains
+    // votes once more on its own, when it is long enough to be most of a part's.
+    let f = region.coarse.factor;
+    let unexplained: Vec<(Pt, usize, i32)> = if found.is_empty() {
+        Vec::new()
+    } else {
+        // The found parts' material grown by twice the widest tolerance (a region outline point
+        // farther out is no part's): a cheaper look than a distance to every placed outline.
+        let reach = found.iter().map(|x| 2.0 * x.tolerance * x.reg.pose.scale).fold(0.0, f64::max);
+        let size = 2 * (reach / f as f64).ceil() as i32 + 1;
+        let near = found
+            .iter()
+            .map(|x| mask_of(lib, x, region.blob, f))
+            .try_fold(Mat::default(), |acc, m| -> opencv::Result<Mat> {
+                let m = m?;
+                if acc.empty() {
+                    return Ok(m);
+                }
+                let mut both = Mat::default();
+                core::bitwise_or(&acc, &m, &mut both, &core::no_array())?;
+                Ok(both)
+            })
+            .and_then(|m| dilate(&m, size));
+        match near {
+            Ok(near) => scene.iter().copied().filter(|&(p, _, _)| !at_mask(&near, region.blob, p, f)).collect(),
+            Err(_) => Vec::new(),
+        }
+    };
+    let shortest = lib.entries.iter().map(|e| e.shape.vote.len() * MODEL_VOTE_STRIDE).min().unwrap_or(usize::MAX);
+    if 2 * unexplained.len() >= shortest {
+        for (ei, init, _) in hypotheses(&unexplained, &mut vote_ms) {
+            if let Some(part) = look(&found, ei, init) {
+                found.push(part);
+            }
+        }
     }
     // One physical part, several explanations (the same template from two peaks, another face or
     // type): the best stays, the runner-up of a different type or face is its rival.
     found.sort_by(|a, b| b.support.total_cmp(&a.support));
-    let f = region.coarse.factor;
     let masks: Vec<Mat> = found.iter().map(|x| mask_of(lib, x, region.blob, f).unwrap_or_default()).collect();
     let areas: Vec<f64> = masks.iter().map(|m| core::count_non_zero(m).unwrap_or(0) as f64).collect();
     let mut keep: Vec<usize> = Vec::new();
@@ -807,6 +860,13 @@ fn erode(m: &Mat, size: i32) -> opencv::Result<Mat> {
     let kernel = imgproc::get_structuring_element(imgproc::MORPH_ELLIPSE, core::Size::new(size, size), Point::new(-1, -1))?;
     let mut out = Mat::default();
     imgproc::erode(m, &mut out, &kernel, Point::new(-1, -1), 1, core::BORDER_CONSTANT, Scalar::all(0.0))?;
+    Ok(out)
+}
+
+fn dilate(m: &Mat, size: i32) -> opencv::Result<Mat> {
+    let kernel = imgproc::get_structuring_element(imgproc::MORPH_ELLIPSE, core::Size::new(size, size), Point::new(-1, -1))?;
+    let mut out = Mat::default();
+    imgproc::dilate(m, &mut out, &kernel, Point::new(-1, -1), 1, core::BORDER_CONSTANT, Scalar::all(0.0))?;
     Ok(out)
 }
 
