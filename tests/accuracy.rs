@@ -101,18 +101,8 @@ fn hard_samples_have_no_false_accepts_and_clean_poses_right() {
 }
 
 fn shared_set(name: &str) {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared").join(name);
+    let (dir, templates) = common::shared_set(name);
     let truth_path = dir.join("truth.jsonl");
-    assert!(truth_path.exists(), "{} not found: the shared samples must lie beside the checkout (as in CI)", truth_path.display());
-    let mut templates = Vec::new();
-    for (i, name) in ["A", "B", "C"].iter().enumerate() {
-        for face in [lfi_bridge::vision::Face::Up, lfi_bridge::vision::Face::Down] {
-            let (img, _) = lfi_bridge::imageio::read_gray(&dir.join(format!("templates/{name}_{face}.png"))).unwrap();
-            templates.push(
-                lfi_bridge::vision::Template::from_image(img.view().unwrap(), name, i as u16 + 1, face, None, &Params::default()).unwrap(),
-            );
-        }
-    }
     let est = Estimator::new(&templates, Params::default()).unwrap();
     let records = lfi_bridge::truth::parse_truth(&std::fs::read_to_string(&truth_path).unwrap(), "truth.jsonl").unwrap();
     let obs: Vec<_> = records

@@ -229,16 +229,7 @@ fn parts_a_few_pixels_apart_are_each_found() {
 #[test]
 fn a_part_the_first_vote_passes_over_is_found_from_the_outline_left() {
     use opencv::{core, imgproc, prelude::*};
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/samples");
-    let mut templates = Vec::new();
-    for (i, name) in ["A", "B", "C"].iter().enumerate() {
-        for face in [lfi_bridge::vision::Face::Up, lfi_bridge::vision::Face::Down] {
-            let (img, _) = lfi_bridge::imageio::read_gray(&dir.join(format!("templates/{name}_{face}.png"))).unwrap();
-            templates.push(
-                lfi_bridge::vision::Template::from_image(img.view().unwrap(), name, i as u16 + 1, face, None, &Params::default()).unwrap(),
-            );
-        }
-    }
+    let (dir, templates) = common::shared_set("samples");
     let est = Estimator::new(&templates, Params::default()).unwrap();
     let records = lfi_bridge::truth::parse_truth(&std::fs::read_to_string(dir.join("truth.jsonl")).unwrap(), "truth.jsonl").unwrap();
     let truth = records.iter().find(|r| r.image == "images/s00016_touching.png").expect("the touching pair of forks");

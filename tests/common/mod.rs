@@ -21,6 +21,22 @@ pub fn simulator(seed: u64, noise: Option<f64>) -> Simulator {
     Simulator::new(SimConfig { width: 2592, height: 1944, seed, noise }).expect("simulator")
 }
 
+/// A shared sample set's folder (`../shared/NAME`, beside the checkout as in CI) and its
+/// templates A, B, C enrolled as ids 1, 2, 3, both faces, as a new user would.
+pub fn shared_set(name: &str) -> (std::path::PathBuf, Vec<Template>) {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared").join(name);
+    let truth = dir.join("truth.jsonl");
+    assert!(truth.exists(), "{} not found: the shared samples must lie beside the checkout (as in CI)", truth.display());
+    let mut templates = Vec::new();
+    for (i, name) in ["A", "B", "C"].iter().enumerate() {
+        for face in [lfi_bridge::vision::Face::Up, lfi_bridge::vision::Face::Down] {
+            let (img, _) = lfi_bridge::imageio::read_gray(&dir.join(format!("templates/{name}_{face}.png"))).unwrap();
+            templates.push(Template::from_image(img.view().unwrap(), name, i as u16 + 1, face, None, &Params::default()).unwrap());
+        }
+    }
+    (dir, templates)
+}
+
 /// Renders and estimates scenes `indices` of the given conditions.
 pub fn observe(sim: &Simulator, est: &Estimator, scenes: &[(u64, &str)]) -> Vec<Observation> {
     scenes
