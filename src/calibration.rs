@@ -42,6 +42,9 @@ pub struct PlateCalibration {
     pub camera: PlaneCamera,
     /// Plate millimetres to robot millimetres.
     pub robot: Similarity,
+    /// The robot frame was fitted with a free scale (`fit = "similarity"`), not rigidly: as
+    /// configured, not read back from a scale that happened to come out 1.
+    pub scaled: bool,
     /// Each touched-up point's distance from where the fit puts it, mm, in the configured order.
     pub residuals_mm: Vec<f64>,
 }
@@ -228,7 +231,14 @@ impl Calibration {
                     .camera()
                     .ok_or_else(|| CalibrationError::File { path: file.clone(), message: "the plane map is singular".into() })?;
                 let (robot, residuals_mm) = place_in_robot_frame(&camera, points, *scaled, *max_point_error_mm)?;
-                Ok(Calibration::Plate(Box::new(PlateCalibration { file: file.clone(), plate, camera, robot, residuals_mm })))
+                Ok(Calibration::Plate(Box::new(PlateCalibration {
+                    file: file.clone(),
+                    plate,
+                    camera,
+                    robot,
+                    scaled: *scaled,
+                    residuals_mm,
+                })))
             }
         }
     }
@@ -356,9 +366,9 @@ impl Calibration {
                     p.plate.lens.k2,
                     f.rms_px,
                     f.residual_mm_max,
-                    if r.scale == 1.0 { "rigid" } else { "similarity" },
+                    if p.scaled { "similarity" } else { "rigid" },
                     p.residuals_mm.len(),
-                    if r.scale == 1.0 { "scale fixed at 1".to_string() } else { format!("scale {:.5}", r.scale) },
+                    if p.scaled { format!("scale {:.5}", r.scale) } else { "scale fixed at 1".to_string() },
                     if r.mirrored {
                         "mirrored (the robot sees the belt from the other side: its hand differs from the image's)"
                     } else {

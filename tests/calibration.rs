@@ -145,12 +145,30 @@ fn robot_millimetres_over_the_whole_field_are_within_hundredths_where_a_homograp
         let file = dir.path().join(format!("{}.toml", grid.as_str()));
         std::fs::write(&file, plate_file(&fit, &plate).to_toml().unwrap()).unwrap();
         let marks = touch_ups(&sim, &plate, &plate.corner_marks());
-        let cal =
-            Calibration::from_config(&CalibrationConfig::Plate { file, points: marks.clone(), scaled: true, max_point_error_mm: 0.5 })
-                .unwrap();
+        let cal = Calibration::from_config(&CalibrationConfig::Plate {
+            file: file.clone(),
+            points: marks.clone(),
+            scaled: true,
+            max_point_error_mm: 0.5,
+        })
+        .unwrap();
         let Calibration::Plate(p) = &cal else { panic!("a plate calibration") };
         assert!(p.robot.mirrored, "the cell's robot sees the belt mirrored");
         assert!(cal.describe().contains("mirrored"), "{}", cal.describe());
+        assert!(cal.describe().contains("similarity fitted to 4 points"), "{}", cal.describe());
+        // Fitted rigidly as configured, the start-up log says so whatever scale comes out.
+        let rigid = Calibration::from_config(&CalibrationConfig::Plate {
+            file: file.clone(),
+            points: marks.clone(),
+            scaled: false,
+            max_point_error_mm: 5.0,
+        })
+        .unwrap();
+        assert!(
+            rigid.describe().contains("rigid fitted to 4 points") && rigid.describe().contains("scale fixed at 1"),
+            "{}",
+            rigid.describe()
+        );
         let homography = lfi_bridge::calibration::fit(&marks).unwrap();
         // Every 40th pixel over the whole frame, corners included.
         let (mut ours, mut theirs) = (Vec::new(), Vec::new());
