@@ -230,8 +230,14 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             points,
         })
     };
+    // Each found part's filled outline at its pose, made once: the second vote's look at what is
+    // left and the overlap tests below read the same masks.
+    let f = region.coarse.factor;
+    let mask = |x: &Found| mask_of(lib, x, region.blob, f).unwrap_or_default();
+    let mut masks: Vec<Mat> = Vec::new();
     for (ei, init, _) in hyps {
         if let Some(part) = look(&found, ei, init) {
+            masks.push(mask(&part));
             found.push(part);
         }
     }
@@ -239,24 +245,21 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     // strongest peaks at all: the neighbour's outline votes for that neighbour again from every
     // face and type alike. The stretch of the region's outline that no part found explains
     // votes once more on its own, when it is long enough to be most of a part's.
-    let f = region.coarse.factor;
-    let unexplained: Vec<(Pt, usize, i32)> = if found.is_empty() {
+    let unexplained: Vec<(Pt, usize, i32)> = if found.is_empty() || masks.iter().any(|m| m.empty()) {
         Vec::new()
     } else {
         // The found parts' material grown by twice the widest tolerance (a region outline point
         // farther out is no part's): a cheaper look than a distance to every placed outline.
         let reach = found.iter().map(|x| 2.0 * x.tolerance * x.reg.pose.scale).fold(0.0, f64::max);
         let size = 2 * (reach / f as f64).ceil() as i32 + 1;
-        let near = found
+        let near = masks
             .iter()
-            .map(|x| mask_of(lib, x, region.blob, f))
             .try_fold(Mat::default(), |acc, m| -> opencv::Result<Mat> {
-                let m = m?;
                 if acc.empty() {
-                    return Ok(m);
+                    return m.try_clone();
                 }
                 let mut both = Mat::default();
-                core::bitwise_or(&acc, &m, &mut both, &core::no_array())?;
+                core::bitwise_or(&acc, m, &mut both, &core::no_array())?;
                 Ok(both)
             })
             .and_then(|m| dilate(&m, size));
@@ -269,14 +272,16 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     if 2 * unexplained.len() >= shortest {
         for (ei, init, _) in hypotheses(&unexplained, &mut vote_ms) {
             if let Some(part) = look(&found, ei, init) {
+                masks.push(mask(&part));
                 found.push(part);
             }
         }
     }
     // One physical part, several explanations (the same template from two peaks, another face or
     // type): the best stays, the runner-up of a different type or face is its rival.
-    found.sort_by(|a, b| b.support.total_cmp(&a.support));
-    let masks: Vec<Mat> = found.iter().map(|x| mask_of(lib, x, region.blob, f).unwrap_or_default()).collect();
+    let mut by_support: Vec<(Found, Mat)> = found.into_iter().zip(masks).collect();
+    by_support.sort_by(|a, b| b.0.support.total_cmp(&a.0.support));
+    let (mut found, masks): (Vec<Found>, Vec<Mat>) = by_support.into_iter().unzip();
     let areas: Vec<f64> = masks.iter().map(|m| core::count_non_zero(m).unwrap_or(0) as f64).collect();
     let mut keep: Vec<usize> = Vec::new();
     for i in 0..found.len() {

@@ -459,6 +459,15 @@ impl Estimator {
         Ok(Self { lib: Library::new(templates, params.signal_bins), params, min_area, min_debris_area, max_template_area: largest })
     }
 
+    /// How far (template pixels) a part's outline may lie from template `entry`'s and still be
+    /// on it, at frame noise `noise`: outlines of rounded parts shift with the light by a few
+    /// pixels, larger parts' more; noise adds jitter. One rule for the single-part path, the
+    /// region search and a calibration's re-registration.
+    fn tolerance(&self, entry: usize, noise: f64) -> f64 {
+        let p = &self.params;
+        p.fit_tolerance + p.fit_tolerance_rel * self.lib.entries[entry].template.rms_radius() + noise / 15.0
+    }
+
     /// The shortest segment any template's part keeps (5 % of the smallest one's diagonal).
     fn least_segment(&self) -> f64 {
         self.params.min_segment_fraction * self.lib.entries.iter().map(|e| e.diag).fold(f64::INFINITY, f64::min)
@@ -496,8 +505,8 @@ impl Estimator {
         if outline.len() < 16 {
             return None;
         }
-        let tolerance = self.params.fit_tolerance + self.params.fit_tolerance_rel * e.template.rms_radius();
-        let reg = register::register(outline, &e.index, init, tolerance, 1);
+        // A rectified view has no pixel noise of its own.
+        let reg = register::register(outline, &e.index, init, self.tolerance(entry, 0.0), 1);
         let p = reg.pose;
         (p.to.x.is_finite() && p.to.y.is_finite() && p.angle_rad.is_finite() && p.scale.is_finite()).then_some(p)
     }
@@ -570,8 +579,7 @@ impl Estimator {
         let p = &self.params;
         let (contrast, noise) = (looked.contrast, looked.noise);
         let region = clump::Region { coarse, blob, outline: &whole.outline, noise, contrast };
-        let tolerance = |ei: usize| p.fit_tolerance + p.fit_tolerance_rel * self.lib.entries[ei].template.rms_radius() + noise / 15.0;
-        let ex = clump::explain(&self.lib, &region, tolerance, self.min_debris_area);
+        let ex = clump::explain(&self.lib, &region, |ei| self.tolerance(ei, noise), self.min_debris_area);
         tm.vote += ex.vote_ms;
         if ex.parts.is_empty() {
             return Ok(None);
@@ -852,8 +860,7 @@ impl Estimator {
                     angle_rad: (al.shift / corr.bins() as f64) * std::f64::consts::TAU,
                     scale: al.scale,
                 };
-                // Outlines of rounded parts shift with the light by a few pixels; noise adds jitter.
-                let tolerance = p.fit_tolerance + p.fit_tolerance_rel * e.template.rms_radius() + noise / 15.0;
+                let tolerance = self.tolerance(i, noise);
                 // The closest is given up early when most of the outline is not near it at all
                 // (several parts in one region: the region search takes over), well below the
                 // fit that could name a type.
