@@ -18,6 +18,7 @@ pub mod clump;
 pub mod correlate;
 pub mod decide;
 pub mod detect;
+pub mod fld;
 pub mod frame;
 pub mod geometry;
 pub mod lines;
