@@ -162,11 +162,11 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     let (lo, hi) = bounds(region.outline);
     let mut acc = Accumulator::new(lo, hi);
     let mut vote_ms = 0.0;
-    let mut hypotheses = |scene: &[(Pt, usize, i32)], vote_ms: &mut f64| {
+    let mut hypotheses = |scene: &[(Pt, usize, i32)], scale: f64, vote_ms: &mut f64| {
         let voting = std::time::Instant::now();
         let mut hyps: Vec<(usize, Similarity, u32)> = Vec::new();
         for (ei, e) in lib.entries.iter().enumerate() {
-            for (pose, votes) in vote(&mut acc, &e.shape, e.template.centroid, scene) {
+            for (pose, votes) in vote(&mut acc, &e.shape, e.template.centroid, scene, scale) {
                 hyps.push((ei, pose, votes));
             }
         }
@@ -180,7 +180,7 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         *vote_ms += voting.elapsed().as_secs_f64() * 1e3;
         hyps
     };
-    let hyps = hypotheses(&scene, &mut vote_ms);
+    let hyps = hypotheses(&scene, 1.0, &mut vote_ms);
     let ext = OutlineIndex::of_frame(region.outline);
     let edge = EdgeTest::new(region.coarse, region.noise, region.contrast);
     let mut found: Vec<Found> = Vec::new();
@@ -241,15 +241,16 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             found.push(part);
         }
     }
-    // A part whose outline shows less than its neighbour's may not make the first vote's
-    // strongest peaks at all: the neighbour's outline votes for that neighbour again from every
-    // face and type alike. The stretch of the region's outline that no part found explains
-    // votes once more on its own, when it is long enough to be most of a part's.
-    let unexplained: Vec<(Pt, usize, i32)> = if found.is_empty() || masks.iter().any(|m| m.empty()) {
-        Vec::new()
-    } else {
-        // The found parts' material grown by twice the widest tolerance (a region outline point
-        // farther out is no part's): a cheaper look than a distance to every placed outline.
+    // The stretch of the region's outline that no part found so far explains: outside the found
+    // parts' material grown by twice the widest tolerance (a region outline point farther out is
+    // no part's; a cheaper look than a distance to every placed outline).
+    let left = |found: &[Found], masks: &[Mat]| -> Vec<(Pt, usize, i32)> {
+        if found.is_empty() {
+            return scene.clone();
+        }
+        if masks.iter().any(|m| m.empty()) {
+            return Vec::new();
+        }
         let reach = found.iter().map(|x| 2.0 * x.tolerance * x.reg.pose.scale).fold(0.0, f64::max);
         let size = 2 * (reach / f as f64).ceil() as i32 + 1;
         let near = masks
@@ -268,9 +269,24 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
             Err(_) => Vec::new(),
         }
     };
+    // Long enough to be most of a part's outline.
     let shortest = lib.entries.iter().map(|e| e.shape.vote.len() * MODEL_VOTE_STRIDE).min().unwrap_or(usize::MAX);
-    if 2 * unexplained.len() >= shortest {
-        for (ei, init, _) in hypotheses(&unexplained, &mut vote_ms) {
+    let enough = |rest: &[(Pt, usize, i32)]| 2 * rest.len() >= shortest;
+    // A part whose outline shows less than its neighbour's may not make the first vote's
+    // strongest peaks at all: the neighbour's outline votes for that neighbour again from every
+    // face and type alike. What is left votes once more on its own. Then, should some still be
+    // left, at a scale 5 % either side: the vote at the template's scale smears the centroid's
+    // votes of a part more than about 4 % larger or smaller (a 370 px radius moves 15 px, over a
+    // cell) and loses its peak, where the registration would pull the scale in.
+    for scale in [1.0, 0.95, 1.05] {
+        if scale == 1.0 && found.is_empty() {
+            continue; // the same vote again
+        }
+        let rest = left(&found, &masks);
+        if !enough(&rest) {
+            break;
+        }
+        for (ei, init, _) in hypotheses(&rest, scale, &mut vote_ms) {
             if let Some(part) = look(&found, ei, init) {
                 masks.push(mask(&part));
                 found.push(part);
@@ -448,15 +464,16 @@ impl Accumulator {
 
 /// Generalised Hough vote of one template over the region: its best few poses (scale 1) and
 /// their votes (3 x 3 x 3 cells around the peak).
-fn vote(acc: &mut Accumulator, model: &ShapeModel, centroid: Pt, scene: &[(Pt, usize, i32)]) -> Vec<(Similarity, u32)> {
+fn vote(acc: &mut Accumulator, model: &ShapeModel, centroid: Pt, scene: &[(Pt, usize, i32)], scale: f64) -> Vec<(Similarity, u32)> {
     let (lo, nx, ny) = (acc.lo, acc.nx, acc.ny);
     let plane = nx * ny;
     let fine_step = std::f64::consts::TAU / FINE as f64;
-    // The rotation table scaled to accumulator cells, so that the inner loop needs no division.
+    // The rotation table scaled to accumulator cells (and by the part's scale), so that the
+    // inner loop needs no division.
     let lut: Vec<(f64, f64)> = (0..FINE)
         .map(|b| {
             let (s, c) = (b as f64 * fine_step).sin_cos();
-            (s / CELL, c / CELL)
+            (s * scale / CELL, c * scale / CELL)
         })
         .collect();
     let per_bin = FINE / ANGLE_BINS;
@@ -555,7 +572,7 @@ fn vote(acc: &mut Accumulator, model: &ShapeModel, centroid: Pt, scene: &[(Pt, u
             }
             let (cx, cy, a) = if sw > 0.0 { (sx / sw, sy / sw, sa / sw) } else { (x as f64 + 0.5, y as f64 + 0.5, (b * per_bin) as f64) };
             let to = Pt::new(lo.x + cx * CELL, lo.y + cy * CELL);
-            (Similarity { from: centroid, to, angle_rad: a * fine_step, scale: 1.0 }, v)
+            (Similarity { from: centroid, to, angle_rad: a * fine_step, scale }, v)
         })
         .collect();
     for &k in &acc.touched {
