@@ -222,22 +222,34 @@ fn parts_a_few_pixels_apart_are_each_found() {
     }
 }
 
+/// An estimator of the shared samples' templates, and one of their scenes' truth and image
+/// passed through `transform` (an OpenCV operation from the image's matrix into a new one).
+fn shared_scene(
+    image: &str,
+    transform: impl Fn(&opencv::core::Mat, &mut opencv::core::Mat),
+) -> (Estimator, lfi_bridge::truth::TruthRecord, lfi_bridge::vision::GrayImage) {
+    use opencv::prelude::*;
+    let (dir, templates) = common::shared_set("samples");
+    let est = Estimator::new(&templates, Params::default()).unwrap();
+    let records = lfi_bridge::truth::parse_truth(&std::fs::read_to_string(dir.join("truth.jsonl")).unwrap(), "truth.jsonl").unwrap();
+    let truth = records.into_iter().find(|r| r.image == image).unwrap_or_else(|| panic!("{image} in the shared samples"));
+    let (img, _) = lfi_bridge::imageio::read_gray(&dir.join(&truth.image)).unwrap();
+    let mut out = opencv::core::Mat::default();
+    transform(&img.view().unwrap().as_mat().unwrap().try_clone().unwrap(), &mut out);
+    let img = lfi_bridge::vision::GrayImage { data: out.data_bytes().unwrap().to_vec(), width: img.width, height: img.height };
+    (est, truth, img)
+}
+
 /// A part that the first vote's strongest peaks pass over (its neighbour's outline votes for
 /// that neighbour again from every face and type) is found from the stretch of the region's
 /// outline that no found part explains, with its own pose, instead of being left over as
 /// unexplained material: the shared samples' touching pair of forks, blurred by a further 1.8 px.
 #[test]
 fn a_part_the_first_vote_passes_over_is_found_from_the_outline_left() {
-    use opencv::{core, imgproc, prelude::*};
-    let (dir, templates) = common::shared_set("samples");
-    let est = Estimator::new(&templates, Params::default()).unwrap();
-    let records = lfi_bridge::truth::parse_truth(&std::fs::read_to_string(dir.join("truth.jsonl")).unwrap(), "truth.jsonl").unwrap();
-    let truth = records.iter().find(|r| r.image == "images/s00016_touching.png").expect("the touching pair of forks");
-    let (img, _) = lfi_bridge::imageio::read_gray(&dir.join(&truth.image)).unwrap();
-    let mut blurred = Mat::default();
-    imgproc::gaussian_blur(&img.view().unwrap().as_mat().unwrap(), &mut blurred, core::Size::new(0, 0), 1.8, 1.8, core::BORDER_REPLICATE)
-        .unwrap();
-    let img = lfi_bridge::vision::frame::GrayImage { data: blurred.data_bytes().unwrap().to_vec(), width: img.width, height: img.height };
+    use opencv::{core, imgproc};
+    let (est, truth, img) = shared_scene("images/s00016_touching.png", |img, out| {
+        imgproc::gaussian_blur(img, out, core::Size::new(0, 0), 1.8, 1.8, core::BORDER_REPLICATE).unwrap()
+    });
     let fe = est.estimate(img.view().unwrap()).unwrap();
     assert_eq!(truth.parts.len(), 2);
     for t in &truth.parts {
@@ -265,27 +277,14 @@ fn a_part_the_first_vote_passes_over_is_found_from_the_outline_left() {
 #[test]
 fn a_part_a_few_percent_off_the_templates_scale_is_found_in_a_region() {
     use opencv::{core, imgproc, prelude::*};
-    let (dir, templates) = common::shared_set("samples");
-    let est = Estimator::new(&templates, Params::default()).unwrap();
-    let records = lfi_bridge::truth::parse_truth(&std::fs::read_to_string(dir.join("truth.jsonl")).unwrap(), "truth.jsonl").unwrap();
-    let truth = records.iter().find(|r| r.image == "images/s00014_occluded.png").expect("the fork on a plate");
-    let (img, _) = lfi_bridge::imageio::read_gray(&dir.join(&truth.image)).unwrap();
-    let (w, h) = (img.width as f64, img.height as f64);
     let s = 0.97;
-    let m = imgproc::get_rotation_matrix_2d(core::Point2f::new((w / 2.0) as f32, (h / 2.0) as f32), 0.0, s).unwrap();
-    let mut shrunk = Mat::default();
-    let size = core::Size::new(img.width as i32, img.height as i32);
-    imgproc::warp_affine(
-        &img.view().unwrap().as_mat().unwrap(),
-        &mut shrunk,
-        &m,
-        size,
-        imgproc::INTER_LINEAR,
-        core::BORDER_REPLICATE,
-        core::Scalar::default(),
-    )
-    .unwrap();
-    let img = lfi_bridge::vision::frame::GrayImage { data: shrunk.data_bytes().unwrap().to_vec(), width: img.width, height: img.height };
+    let (est, truth, img) = shared_scene("images/s00014_occluded.png", |img, out| {
+        let centre = core::Point2f::new(img.cols() as f32 / 2.0, img.rows() as f32 / 2.0);
+        let m = imgproc::get_rotation_matrix_2d(centre, 0.0, s).unwrap();
+        let (size, replicate) = (img.size().unwrap(), core::BORDER_REPLICATE);
+        imgproc::warp_affine(img, out, &m, size, imgproc::INTER_LINEAR, replicate, core::Scalar::default()).unwrap()
+    });
+    let (w, h) = (img.width as f64, img.height as f64);
     let fe = est.estimate(img.view().unwrap()).unwrap();
     let t = truth.parts.iter().find(|t| t.visible_fraction >= 0.98).expect("the fork lies on top");
     let (x, y) = (w / 2.0 + s * (t.x_px - w / 2.0), h / 2.0 + s * (t.y_px - h / 2.0));
