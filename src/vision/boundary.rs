@@ -155,9 +155,9 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     Refined { outline, contrast }
 }
 
-/// Appends the frame's bilinear samples at `b + n t` for every t: as [`GrayView::bilinear`]
-/// gives them, without its clamping where the whole profile lies inside the frame (nearly every
-/// profile; this is the refinement's innermost loop).
+/// Appends the frame's bilinear samples at `b + n t` for every t (evenly spaced, ascending): as
+/// [`GrayView::bilinear`] gives them, without its clamping where the whole profile lies inside
+/// the frame (nearly every profile; this is the refinement's innermost loop).
 fn profile(frame: GrayView<'_>, b: Pt, n: Pt, ts: &[f64], out: &mut Vec<f64>) {
     let (w, h) = (frame.width(), frame.height());
     let (Some(&t0), Some(&t1)) = (ts.first(), ts.last()) else { return };
@@ -169,14 +169,15 @@ fn profile(frame: GrayView<'_>, b: Pt, n: Pt, ts: &[f64], out: &mut Vec<f64>) {
         return;
     }
     let data = frame.data();
-    // Positions in 2^-24 pixel, stepped by adding the normal's step (the samples lie STEP apart)
-    // and the weights in integers: no float-to-index round trip per sample. A position moves by
-    // under 1e-6 pixel over a profile, a value by under 0.001 gray level.
+    // Positions in 2^-24 pixel, stepped by adding the normal's step and the weights in integers:
+    // no float-to-index round trip per sample. A position moves by under 1e-6 pixel over a
+    // profile, a value by under 0.001 gray level.
     const BITS: u32 = 24;
     const ONE: f64 = (1u64 << BITS) as f64;
     const FRAC: i64 = (1 << BITS) - 1;
     let (mut x, mut y) = ((xa * ONE) as i64, (ya * ONE) as i64);
-    let (dx, dy) = ((n.x * STEP * ONE).round() as i64, (n.y * STEP * ONE).round() as i64);
+    let step = if ts.len() > 1 { (t1 - t0) / (ts.len() - 1) as f64 } else { 0.0 };
+    let (dx, dy) = ((n.x * step * ONE).round() as i64, (n.y * step * ONE).round() as i64);
     out.extend(ts.iter().map(|_| {
         let (fx, fy) = (x & FRAC, y & FRAC);
         let i = (y >> BITS) as usize * w + (x >> BITS) as usize;

@@ -37,6 +37,7 @@ pub fn detect(map: &mut [u8], width: usize, height: usize, min_len: usize, max_d
     }
     let mut chain: Vec<(i32, i32)> = Vec::new();
     let mut found: Vec<Line> = Vec::new();
+    let (wf, hf) = (w as f32, h as f32);
     for r in 0..h {
         for c in 0..w {
             if map[r * w + c] == 0 {
@@ -59,7 +60,6 @@ pub fn detect(map: &mut [u8], width: usize, height: usize, min_len: usize, max_d
             }
             found.clear();
             split(&chain, min_len, max_dist as f64, (w, h), &mut found);
-            let (wf, hf) = (w as f32, h as f32);
             for &s in &found {
                 let [x1, y1, x2, y2] = s;
                 let len = ((x1 - x2) * (x1 - x2) + (y1 - y2) * (y1 - y2)).sqrt();
@@ -233,7 +233,7 @@ fn split(points: &[(i32, i32)], min_len: usize, max_dist: f64, size: (usize, usi
 fn direct(map: &[u8], w: usize, h: usize, s: Line) -> Line {
     let [x1, y1, x2, y2] = s;
     let ang = ((y2 - y1) as f64).atan2((x2 - x1) as f64) as f32 as f64;
-    let (dx, dy) = ((x2 - x1) as f64 as f32, (y2 - y1) as f64 as f32);
+    let (dx, dy) = (x2 - x1, y2 - y1);
     let (ox, oy) = ((std::f64::consts::FRAC_PI_2 + ang).cos(), (std::f64::consts::FRAC_PI_2 + ang).sin());
     // Held five pixels inside the map, as OpenCV holds them (the map is at least 8 wide).
     let inboard = |v: f64, size: usize| {

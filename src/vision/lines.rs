@@ -116,15 +116,9 @@ pub fn part_segments(
             // The detector clears the edge pixels it traces: it gets a copy of the box, the map
             // is shared by parts. No merging of collinear pieces: it triples the cost and the
             // confidence tolerates fragments.
-            let all = edges.data_bytes()?;
-            let cols = edges.cols() as usize;
-            let (bw, bh) = (r.width as usize, r.height as usize);
-            let mut roi = Vec::with_capacity(bw * bh);
-            for y in r.y as usize..r.y as usize + bh {
-                roi.extend_from_slice(&all[y * cols + r.x as usize..y * cols + r.x as usize + bw]);
-            }
+            let mut roi = Mat::roi(edges, r)?.try_clone()?.data_bytes()?.to_vec();
             let min_coarse = (min_len / f).max(3.0) as usize;
-            let lines = fld::detect(&mut roi, bw, bh, min_coarse, std::f32::consts::SQRT_2);
+            let lines = fld::detect(&mut roi, r.width as usize, r.height as usize, min_coarse, std::f32::consts::SQRT_2);
             let widths = vec![1.0; lines.len()];
             (lines, widths)
         }
