@@ -136,10 +136,11 @@ async fn a_gige_camera_takes_one_frame_per_trigger_survives_being_unplugged_and_
         percentile(&mut to_valid, 0.99)
     );
 
-    // Unplugged: CAMERA_OK 0 and ERROR (camera) within timeout_ms + 1 s, no trigger needed.
+    // Unplugged: CAMERA_OK 0 and ERROR (camera) within timeout_ms and a margin of 3 s for a busy
+    // machine, no trigger needed (the time it took is printed).
     fake.kill();
     let lost = Instant::now();
-    let s = wait_status(&mut ctx, |s| s & status::CAMERA_OK == 0, Duration::from_millis(timeout_ms + 1000)).await;
+    let s = wait_status(&mut ctx, |s| s & status::CAMERA_OK == 0, Duration::from_millis(timeout_ms + 3000)).await;
     eprintln!("camera loss seen after {:?}", lost.elapsed());
     assert_eq!(s & status::READY, 0);
     wait_status(&mut ctx, |s| s & status::ERROR != 0, Duration::from_secs(1)).await;

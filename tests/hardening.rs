@@ -1,5 +1,6 @@
 //! Attacks on the PLC's Modbus service, each on its own against a running appliance on
-//! 127.0.0.1, with bounded loops: whatever a client does, a PLC is served.
+//! 127.0.0.1, with bounded loops: whatever a client does, a PLC is served. Every test here takes
+//! `common::MACHINE`: the one that times the PLC under load runs alone.
 
 mod common;
 
@@ -37,6 +38,7 @@ fn closed_within(s: &mut TcpStream, limit: Duration) -> bool {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn clients_trickling_one_byte_a_second_in_every_slot_do_not_lock_a_plc_out() {
+    let _shared = common::MACHINE.read().await;
     let running = start(&config("max_connections = 16\nidle_timeout_s = 60", "")).await;
     let a = running.modbus_addr;
     // Every slot: a client that sends a request one byte per second (never completing one
@@ -78,6 +80,7 @@ async fn clients_trickling_one_byte_a_second_in_every_slot_do_not_lock_a_plc_out
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn silent_clients_give_their_slots_to_a_new_plc_but_busy_ones_keep_theirs() {
+    let _shared = common::MACHINE.read().await;
     let running = start(&config("max_connections = 4\nidle_timeout_s = 60", "")).await;
     let a = running.modbus_addr;
     // Four silent connections: the oldest gives way to a new client.
@@ -88,8 +91,10 @@ async fn silent_clients_give_their_slots_to_a_new_plc_but_busy_ones_keep_theirs(
     let mut answer = [0u8; 11];
     s.read_exact(&mut answer).unwrap();
     assert_eq!(&answer[..2], &[0, 7], "the new client is served");
+    // The others stay open until the idle timeout (60 s): a longer look changes no count, and
+    // gives a busy machine time to deliver the close.
     assert_eq!(
-        silent.iter_mut().map(|c| closed_within(c, Duration::from_millis(300))).filter(|c| *c).count(),
+        silent.iter_mut().map(|c| closed_within(c, Duration::from_millis(1000))).filter(|c| *c).count(),
         1,
         "exactly one silent slot reclaimed"
     );
@@ -110,7 +115,9 @@ async fn silent_clients_give_their_slots_to_a_new_plc_but_busy_ones_keep_theirs(
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     let mut extra = connect(a);
-    assert!(closed_within(&mut extra, Duration::from_millis(500)), "a fifth client is refused while four poll");
+    // Refused at once; a busy machine may take a moment to deliver it (unrefused it would stay
+    // open until the idle timeout, 60 s).
+    assert!(closed_within(&mut extra, Duration::from_secs(3)), "a fifth client is refused while four poll");
     for c in &mut busy {
         read(c, addr::STATUS, 1).await;
     }
@@ -119,6 +126,7 @@ async fn silent_clients_give_their_slots_to_a_new_plc_but_busy_ones_keep_theirs(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_request_not_complete_within_the_frame_timeout_closes_its_connection() {
+    let _shared = common::MACHINE.read().await;
     let running = start(&config("frame_timeout_s = 0.5\nidle_timeout_s = 60", "")).await;
     let mut s = connect(running.modbus_addr);
     s.write_all(&read_map_version(1)[..5]).unwrap();
@@ -138,6 +146,7 @@ async fn a_request_not_complete_within_the_frame_timeout_closes_its_connection()
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_overlong_length_field_is_answered_and_the_next_request_still_served() {
+    let _shared = common::MACHINE.read().await;
     let running = start(&config("", "")).await;
     let mut s = connect(running.modbus_addr);
     let mut long = read_map_version(1);
@@ -163,6 +172,7 @@ fn free_port() -> u16 {
 /// reads within 2 s.
 #[test]
 fn a_thousand_unfinished_http_requests_leave_descriptors_for_the_plc() {
+    let _shared = common::MACHINE.blocking_read();
     // This test process itself holds the 1,100 client sockets: give it room if the hard limit allows.
     let _ = std::process::Command::new("prlimit").args(["--pid", &std::process::id().to_string(), "--nofile=8192:"]).output();
     let dir = tempfile::tempdir().unwrap();
@@ -188,14 +198,24 @@ fn a_thousand_unfinished_http_requests_leave_descriptors_for_the_plc() {
         assert!(Instant::now() < until, "the appliance never listened");
         std::thread::sleep(Duration::from_millis(100));
     }
-    let mut held = Vec::new();
-    for _ in 0..1100 {
-        // Past the kernel's backlog a connect would wait for its SYN to be retried: bounded.
-        if let Ok(mut s) = TcpStream::connect_timeout(&web_addr, Duration::from_millis(50)) {
-            let _ = s.write_all(b"GET /api/state HTTP/1.1\r\nHost: x\r\n");
-            held.push(s);
+    // 1,100 connections tried at once, each sending an unfinished request. Past the kernel's
+    // backlog a connect waits for its SYN to be retried: each is bounded, and all wait together
+    // (one after another they cost 50 ms each, 40 s in all).
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+    let held: Vec<std::net::TcpStream> = rt.block_on(async move {
+        use tokio::io::AsyncWriteExt;
+        let mut tries = tokio::task::JoinSet::new();
+        for _ in 0..1100 {
+            tries.spawn(async move {
+                let mut s = tokio::time::timeout(Duration::from_millis(500), tokio::net::TcpStream::connect(web_addr)).await.ok()?.ok()?;
+                let _ = s.write_all(b"GET /api/state HTTP/1.1\r\nHost: x\r\n").await;
+                s.into_std().ok()
+            });
         }
-    }
+        tries.join_all().await.into_iter().flatten().collect()
+    });
+    // Every one of the operator view's 32 connections and the kernel's backlog behind them.
+    assert!(held.len() > 32, "only {} unfinished requests reached the operator view", held.len());
     let t = Instant::now();
     let mut plc = TcpStream::connect_timeout(&modbus_addr, Duration::from_secs(2)).expect("a new PLC connects");
     plc.set_read_timeout(Some(Duration::from_secs(2))).unwrap();
@@ -224,6 +244,7 @@ fn scopeguard(c: &mut std::process::Child) -> Kill<'_> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_silent_or_slow_http_client_is_closed_after_the_header_timeout() {
+    let _shared = common::MACHINE.read().await;
     let mut cfg = config("", "");
     cfg.http.as_mut().unwrap().header_timeout = Duration::from_millis(500);
     let running = start(&cfg).await;
@@ -236,15 +257,26 @@ async fn a_silent_or_slow_http_client_is_closed_after_the_header_timeout() {
     running.stop().await;
 }
 
-/// Rounds of 200 parallel live-frame requests while a PLC polls every 20 ms and triggers: the
-/// PLC's reads and cycles hardly notice (the frame is encoded once per frame, HTTP has its own
-/// thread and an in-flight limit).
+/// 200 live-frame requests kept in flight while a PLC polls and triggers: the PLC's reads and
+/// cycles hardly notice (the frame is encoded once per frame, HTTP has its own thread at a lower
+/// priority and an in-flight limit).
+///
+/// Measured so that one slow moment of a shared machine cannot fail it and a real slowdown
+/// still does: quiet and loaded phases alternate in rounds (a drift of the machine's pace hits
+/// both), each figure is a 90th percentile over 70-odd cycles (the 7 slowest may be anything)
+/// compared with the quiet phases' of the same run, and no other test of this binary runs
+/// beside it (`MACHINE`). The strict figure, p99 over hundreds of cycles against the unloaded
+/// median, is `cargo bench --bench plc`'s third table.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_hundred_parallel_live_frame_requests_do_not_slow_the_plc() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering::Relaxed};
+
     use lfi_bridge::config::SourceConfig;
     use lfi_bridge::registers::status;
+    let _alone = common::MACHINE.write().await;
     // One scene served over and over: every cycle does the same work, so the loaded cycles
-    // compare with the unloaded median for what the load adds, not for which scene came up (the
+    // compare with the quiet ones for what the load adds, not for which scene came up (the
     // simulator's scenes differ by parts and clumps by 5x).
     let mut cfg = config("", "");
     if let SourceConfig::Sim { scenes, .. } = &mut cfg.cameras[0].source {
@@ -253,84 +285,120 @@ async fn two_hundred_parallel_live_frame_requests_do_not_slow_the_plc() {
     let running = start(&cfg).await;
     let web = running.http_addr.unwrap();
     let mut ctx = plc(running.modbus_addr, 1).await;
-    // Unloaded: the median trigger-to-result cycle.
-    async fn cycle_ms(ctx: &mut tokio_modbus::client::Context) -> f64 {
-        let t = Instant::now();
-        let n = common::appliance::cycle(ctx).await.len();
-        assert!(n > 0);
-        t.elapsed().as_secs_f64() * 1e3
-    }
-    let mut quiet: Vec<f64> = Vec::new();
-    for _ in 0..15 {
-        quiet.push(cycle_ms(&mut ctx).await);
-    }
-    quiet.sort_by(f64::total_cmp);
-    let unloaded = quiet[quiet.len() / 2];
-    // The clients are other machines: their own CPU is not the appliance's, so the load runs at
-    // the lowest priority here and the measurement sees the appliance's share of the work.
-    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+
+    // The load: while `on`, 200 clients each request the live frame over and over. The clients
+    // are other machines, whose CPU is not the appliance's: the load runs at the lowest priority
+    // here, so that the measurement sees the appliance's share of the work.
+    let (on, idle, answered, stop) = (
+        Arc::new(AtomicBool::new(false)),
+        Arc::new(AtomicBool::new(true)),
+        Arc::new(AtomicUsize::new(0)),
+        Arc::new(AtomicBool::new(false)),
+    );
     let load = {
-        let stop = stop.clone();
+        let (on, idle, answered, stop) = (on.clone(), idle.clone(), answered.clone(), stop.clone());
         std::thread::spawn(move || {
             // SAFETY: setpriority on this thread's own id.
             unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 19) };
             let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
             rt.block_on(async move {
                 use tokio::io::{AsyncReadExt, AsyncWriteExt};
-                let mut rounds = 0;
-                while !stop.load(std::sync::atomic::Ordering::Relaxed) && rounds < 50 {
-                    let tasks: Vec<_> = (0..200)
+                while !stop.load(Relaxed) {
+                    if !on.load(Relaxed) {
+                        tokio::time::sleep(Duration::from_millis(2)).await;
+                        continue;
+                    }
+                    idle.store(false, Relaxed);
+                    let clients: Vec<_> = (0..200)
                         .map(|_| {
+                            let (on, answered) = (on.clone(), answered.clone());
                             tokio::spawn(async move {
-                                let mut s = tokio::net::TcpStream::connect(web).await.ok()?;
-                                s.write_all(b"GET /api/camera/1/frame.jpg HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").await.ok()?;
-                                let mut out = Vec::new();
-                                tokio::time::timeout(Duration::from_secs(20), s.read_to_end(&mut out)).await.ok()?.ok()?;
-                                Some(out.starts_with(b"HTTP/1.1 200"))
+                                while on.load(Relaxed) {
+                                    let Ok(mut s) = tokio::net::TcpStream::connect(web).await else { continue };
+                                    let ask = b"GET /api/camera/1/frame.jpg HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n";
+                                    if s.write_all(ask).await.is_err() {
+                                        continue;
+                                    }
+                                    let mut out = Vec::new();
+                                    if let Ok(Ok(_)) = tokio::time::timeout(Duration::from_secs(20), s.read_to_end(&mut out)).await {
+                                        answered.fetch_add(out.starts_with(b"HTTP/1.1 200") as usize, Relaxed);
+                                    }
+                                }
                             })
                         })
                         .collect();
-                    let mut ok = 0;
-                    for t in tasks {
-                        ok += matches!(t.await, Ok(Some(true))) as usize;
+                    for c in clients {
+                        let _ = c.await;
                     }
-                    assert!(ok > 0, "no live-frame request answered in a round");
-                    rounds += 1;
+                    idle.store(true, Relaxed);
                 }
-                rounds
             })
         })
     };
-    let mut reads: Vec<f64> = Vec::new();
-    let mut cycles: Vec<f64> = Vec::new();
-    let end = Instant::now() + Duration::from_secs(6);
-    while Instant::now() < end {
-        for _ in 0..5 {
+
+    // One sample: three STATUS reads 10 ms apart (a PLC's polling), then a trigger-to-result cycle.
+    async fn sample(ctx: &mut tokio_modbus::client::Context, reads: &mut Vec<f64>, cycles: &mut Vec<f64>) {
+        for _ in 0..3 {
             let t = Instant::now();
-            let s = read(&mut ctx, addr::STATUS, 1).await[0];
+            let s = read(ctx, addr::STATUS, 1).await[0];
             reads.push(t.elapsed().as_secs_f64() * 1e3);
             assert!(s & status::ONLINE != 0);
-            tokio::time::sleep(Duration::from_millis(20)).await;
+            tokio::time::sleep(Duration::from_millis(10)).await;
         }
-        cycles.push(cycle_ms(&mut ctx).await);
+        let t = Instant::now();
+        assert!(!common::appliance::cycle(ctx).await.is_empty());
+        cycles.push(t.elapsed().as_secs_f64() * 1e3);
     }
-    stop.store(true, std::sync::atomic::Ordering::Relaxed);
-    let rounds = tokio::task::spawn_blocking(move || load.join().unwrap()).await.unwrap();
-    let p99 = |v: &mut Vec<f64>| {
+    // Warm-up: the first frames pay for allocations and the first encode.
+    let (mut quiet_reads, mut quiet_cycles, mut reads, mut cycles) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for _ in 0..3 {
+        sample(&mut ctx, &mut Vec::new(), &mut Vec::new()).await;
+    }
+    const ROUNDS: usize = 6;
+    const PER_PHASE: usize = 12;
+    let mut answered_per_round = Vec::new();
+    for _ in 0..ROUNDS {
+        for _ in 0..PER_PHASE {
+            sample(&mut ctx, &mut quiet_reads, &mut quiet_cycles).await;
+        }
+        let before = answered.load(Relaxed);
+        on.store(true, Relaxed);
+        // Loaded from the first sample on: the clients are connected and waiting.
+        while answered.load(Relaxed) == before {
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+        for _ in 0..PER_PHASE {
+            sample(&mut ctx, &mut reads, &mut cycles).await;
+        }
+        on.store(false, Relaxed);
+        while !idle.load(Relaxed) {
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+        answered_per_round.push(answered.load(Relaxed) - before);
+    }
+    stop.store(true, Relaxed);
+    tokio::task::spawn_blocking(move || load.join().unwrap()).await.unwrap();
+
+    let p = |v: &mut Vec<f64>, q: f64| {
         v.sort_by(f64::total_cmp);
-        v[((v.len() as f64 * 0.99).ceil() as usize).min(v.len()) - 1]
+        v[((v.len() as f64 * q).ceil() as usize).clamp(1, v.len()) - 1]
     };
-    let (read_p99, cycle_p99) = (p99(&mut reads), p99(&mut cycles));
+    let (qr, lr) = (p(&mut quiet_reads, 0.9), p(&mut reads, 0.9));
+    let (qc50, qc90, lc50, lc90) = (p(&mut quiet_cycles, 0.5), p(&mut quiet_cycles, 0.9), p(&mut cycles, 0.5), p(&mut cycles, 0.9));
     eprintln!(
-        "{rounds} rounds of 200 live-frame requests: PLC read p99 {read_p99:.1} ms over {} reads, trigger-to-result p99 {cycle_p99:.1} ms over {} cycles (unloaded median {unloaded:.1} ms)",
+        "{ROUNDS} rounds, live-frame requests answered per loaded phase {answered_per_round:?}: PLC read p90 quiet {qr:.2} ms, loaded {lr:.2} ms over {} reads; trigger-to-result quiet median {qc50:.1} / p90 {qc90:.1} ms, loaded {lc50:.1} / {lc90:.1} ms over {} cycles",
         reads.len(),
         cycles.len()
     );
-    assert!(rounds >= 1);
-    assert!(read_p99 <= 50.0, "read p99 {read_p99:.1} ms");
-    // The bound: 2 x the unloaded median (a cycle under 10 ms is counted as 10: below
-    // that the figure is the test client's polling and the scheduler's tick, not the appliance).
-    assert!(cycle_p99 <= 2.0 * unloaded.max(10.0), "cycle p99 {cycle_p99:.1} ms against an unloaded median of {unloaded:.1} ms");
+    assert!(answered_per_round.iter().all(|&n| n > 0), "a loaded phase without a live frame answered: {answered_per_round:?}");
+    // A PLC polls every 10-20 ms: a read must be answered well within that, loaded or not (a
+    // loopback read takes 0.1-0.3 ms; a service that sleeps or queues behind HTTP does not).
+    assert!(lr <= 10.0 && qr <= 10.0, "read p90 quiet {qr:.2} ms, loaded {lr:.2} ms");
+    // What the load adds to a cycle: within 2 x the quiet cycle of the same run (a cycle under
+    // 10 ms counted as 10: below that the figure is the test client's 2-ms polling and the
+    // scheduler's tick, not the appliance).
+    assert!(lc90 <= 2.0 * qc90.max(10.0), "loaded cycle p90 {lc90:.1} ms against a quiet p90 of {qc90:.1} ms");
+    assert!(lc50 <= 2.0 * qc50.max(10.0), "loaded cycle median {lc50:.1} ms against a quiet median of {qc50:.1} ms");
     running.stop().await;
 }
 
@@ -340,6 +408,7 @@ async fn two_hundred_parallel_live_frame_requests_do_not_slow_the_plc() {
 /// one incomplete frame.
 #[test]
 fn random_and_mutated_modbus_bytes_never_panic_the_framing_or_the_service() {
+    let _shared = common::MACHINE.blocking_read();
     use lfi_bridge::handshake::{Handshake, PickingOrder, Settings, WordOrder};
     use lfi_bridge::modbus::{frame, service};
     use rand::{RngExt, SeedableRng};

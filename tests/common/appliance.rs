@@ -18,7 +18,11 @@ pub fn config(extra_modbus: &str, camera_extra: &str) -> Config {
     Config::from_toml(&text, Path::new("test.toml")).expect("test configuration is valid")
 }
 
+/// The appliance as the binary runs it: OpenCV on one thread (`lfi-bridge`'s default
+/// `--cv-threads 1`), so that the camera worker and the operator view's encoder share no OpenCV
+/// worker pool here either (a pool's threads take the priority of whoever started them).
 pub async fn start(cfg: &Config) -> Running {
+    opencv::core::set_num_threads(1).expect("OpenCV threads");
     lfi_bridge::start(cfg).await.expect("appliance starts")
 }
 

@@ -12,6 +12,14 @@ use lfi_bridge::sim::{SimConfig, Simulator};
 use lfi_bridge::truth::EstimatePart;
 use lfi_bridge::vision::{Estimator, Params, Template};
 
+/// The machine, as the tests of one binary share it (they run two at a time). A test that
+/// measures time against the machine's own pace takes it exclusively (`MACHINE.write()`), and a
+/// test that loads the machine (a CPU-bound loop, hundreds of sockets, a child process) takes it
+/// shared (`MACHINE.read()`, or `blocking_read()` outside a runtime): a measurement then never
+/// runs beside another test's load, while the loads still overlap one another. Light tests with
+/// deadlines of seconds need not take it.
+pub static MACHINE: tokio::sync::RwLock<()> = tokio::sync::RwLock::const_new(());
+
 /// The simulator's templates enrolled as types 1, 2, 3 (the unknown model is left out).
 pub fn enrolled(sim: &Simulator) -> Vec<Template> {
     sim.enrolled(&Params::default()).expect("templates render and enrol")
