@@ -118,6 +118,32 @@ pub enum KbError {
         /// The type that asked for it.
         requested: String,
     },
+    /// A catalogue folder that cannot be listed.
+    #[error("cannot list template folder {path}")]
+    Folder {
+        /// The folder.
+        path: PathBuf,
+        /// Why the system refused it.
+        source: std::io::Error,
+    },
+    /// An entry of a catalogue's id map that is not `TYPE = ID`.
+    #[error("id map {path}, key {key:?}: {message}")]
+    IdMap {
+        /// The map file.
+        path: PathBuf,
+        /// The type name (empty when the file is not TOML at all).
+        key: String,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// A folder with no `TYPE_FACE` image, or a type the id map does not name.
+    #[error("template folder {path}: {message}")]
+    Catalogue {
+        /// The folder.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
 }
 
 #[derive(Debug, Serialize, Deserialize)]
@@ -377,6 +403,112 @@ impl KnowledgeBase {
 
 /// Longest type name accepted (it is shown on the page, logged and part of file names).
 pub const TYPE_NAME_MAX: usize = 40;
+
+/// One image of a catalogue folder and what it enrols.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FolderTemplate {
+    /// The type, from the file name.
+    pub type_name: String,
+    /// Its id: the knowledge base's own for a type it holds, else from the id map or in order.
+    pub id: u16,
+    /// The face, from the file name.
+    pub face: Face,
+    /// The image.
+    pub path: PathBuf,
+}
+
+/// Image files a folder enrolment reads; anything else in the folder is listed as ignored.
+const IMAGE_EXTENSIONS: [&str; 6] = ["png", "pgm", "bmp", "tif", "tiff", "jpg"];
+
+/// The optional id map of a catalogue folder: `DIR/ids.toml`, one `TYPE = ID` per type.
+pub const ID_MAP: &str = "ids.toml";
+
+/// What a folder of `TYPE_FACE.png` templates enrols into `kb`, in type-name order, and the
+/// files it ignores (sub-folders such as `unknown/`, files that are not an image named
+/// `TYPE_up` / `TYPE_down`), so that nothing in the folder is passed over silently.
+///
+/// A type the knowledge base already holds keeps its id (a second id would be refused at the
+/// PLC's end anyway). The others take theirs from the folder's [`ID_MAP`] when there is one (a
+/// new type it does not name is an error), else the next free ids in name order: T001, T002, ...
+/// become 1, 2, ... in an empty knowledge base.
+pub fn plan_folder(dir: &Path, kb: &KnowledgeBase) -> Result<(Vec<FolderTemplate>, Vec<PathBuf>), KbError> {
+    let listing = std::fs::read_dir(dir).map_err(|source| KbError::Folder { path: dir.into(), source })?;
+    let map_path = dir.join(ID_MAP);
+    let mut found = Vec::new();
+    let mut ignored = Vec::new();
+    for entry in listing {
+        let path = entry.map_err(|source| KbError::Folder { path: dir.into(), source })?.path();
+        if path == map_path {
+            continue;
+        }
+        let parsed = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .filter(|e| IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
+            .and_then(|_| path.file_stem()?.to_str())
+            .and_then(|stem| stem.rsplit_once('_'))
+            .and_then(|(name, face)| Some((name.to_string(), face.parse::<Face>().ok()?)))
+            .filter(|(name, _)| check_type_name(name).is_ok());
+        match parsed {
+            Some((type_name, face)) if path.is_file() => found.push((type_name, face, path)),
+            _ => ignored.push(path),
+        }
+    }
+    found.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.code().cmp(&b.1.code())));
+    ignored.sort();
+    if found.is_empty() {
+        return Err(KbError::Catalogue { path: dir.into(), message: "holds no TYPE_up or TYPE_down image".into() });
+    }
+    let map = if map_path.is_file() {
+        let text = std::fs::read_to_string(&map_path).map_err(|source| KbError::Folder { path: map_path.clone(), source })?;
+        Some(parse_id_map(&map_path, &text)?)
+    } else {
+        None
+    };
+    let known = |name: &str| kb.entries.iter().find(|e| e.template.type_name == name).map(|e| e.template.type_id);
+    let mut next = kb.entries.iter().map(|e| e.template.type_id).max().unwrap_or(0);
+    let mut given: Vec<(String, u16)> = Vec::new();
+    let mut plan = Vec::with_capacity(found.len());
+    for (type_name, face, path) in found {
+        let id = if let Some(id) = known(&type_name).or_else(|| given.iter().find(|g| g.0 == type_name).map(|g| g.1)) {
+            id
+        } else if let Some(map) = &map {
+            map.get(&type_name).copied().ok_or_else(|| KbError::Catalogue {
+                path: dir.into(),
+                message: format!("type {type_name:?} ({}) has no id in {}", path.display(), map_path.display()),
+            })?
+        } else {
+            next = next.checked_add(1).ok_or_else(|| KbError::Catalogue {
+                path: dir.into(),
+                message: format!("no id left for type {type_name:?}: ids run to {}", u16::MAX),
+            })?;
+            next
+        };
+        given.push((type_name.clone(), id));
+        plan.push(FolderTemplate { type_name, id, face, path });
+    }
+    Ok((plan, ignored))
+}
+
+/// An id map's text: a TOML table of `TYPE = ID`, ids 1..=65535, each id once.
+fn parse_id_map(path: &Path, text: &str) -> Result<std::collections::BTreeMap<String, u16>, KbError> {
+    let err = |key: &str, message: String| KbError::IdMap { path: path.into(), key: key.into(), message };
+    let table: toml::Table = text.parse().map_err(|e: toml::de::Error| err("", e.message().to_string()))?;
+    let mut map = std::collections::BTreeMap::new();
+    for (name, value) in &table {
+        check_type_name(name).map_err(|p| err(name, format!("type name {p}")))?;
+        let id = value
+            .as_integer()
+            .and_then(|v| u16::try_from(v).ok())
+            .filter(|&v| v > 0)
+            .ok_or_else(|| err(name, format!("id {value} is not a number 1..=65535")))?;
+        if let Some((other, _)) = map.iter().find(|(_, v)| **v == id) {
+            return Err(err(name, format!("id {id} is also {other}'s")));
+        }
+        map.insert(name.clone(), id);
+    }
+    Ok(map)
+}
 
 /// Type names are data that end up in log lines, file names and the page: only ASCII letters,
 /// digits, `-` and `_`, 1 to [`TYPE_NAME_MAX`] long, so none can forge a log line, reach

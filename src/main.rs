@@ -27,18 +27,26 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Add one template (one clean image of one face of one part type) to a knowledge base.
+    /// Add one template (one clean image of one face of one part type) to a knowledge base, or
+    /// with `--dir` every `TYPE_FACE.png` of a folder in one go.
     Enroll {
         #[arg(long)]
         kb: PathBuf,
+        /// A catalogue folder: every `TYPE_up` / `TYPE_down` image in it (`T012_up.png`, ...) is
+        /// enrolled and the knowledge base written once, or not at all when any image fails. New
+        /// types take their ids from `DIR/ids.toml` (`T012 = 12` per type) or, without it, the
+        /// next free ids in type-name order; a type already enrolled keeps its id. Sub-folders
+        /// (such as `unknown/`) are not enrolled.
+        #[arg(long, conflicts_with_all = ["type_name", "id", "face", "origin", "keep_out", "image"])]
+        dir: Option<PathBuf>,
         /// Type name (as reported and as written in ground truth).
-        #[arg(long = "type")]
-        type_name: String,
+        #[arg(long = "type", required_unless_present = "dir")]
+        type_name: Option<String>,
         /// Numeric type id served to the PLC (1..=65535).
-        #[arg(long)]
-        id: u16,
-        #[arg(long, value_parser = parse_face)]
-        face: Face,
+        #[arg(long, required_unless_present = "dir")]
+        id: Option<u16>,
+        #[arg(long, value_parser = parse_face, required_unless_present = "dir")]
+        face: Option<Face>,
         /// Template point reported as the part's position, "X,Y" in template pixels (default: the image centre).
         #[arg(long, value_parser = parse_point)]
         origin: Option<Pt>,
@@ -46,7 +54,8 @@ enum Cmd {
         /// more): other material inside it rejects the part as "no clearance".
         #[arg(long = "keep-out", value_parser = parse_circle)]
         keep_out: Vec<lfi_bridge::vision::KeepOut>,
-        image: PathBuf,
+        #[arg(required_unless_present = "dir")]
+        image: Option<PathBuf>,
     },
     /// Render scenes of built-in parts with ground truth (images/, templates/, truth.jsonl).
     Simulate {
@@ -188,7 +197,12 @@ fn main() -> ExitCode {
             print!("{}{}", lfi_bridge::registers::markdown(), lfi_bridge::robot::markdown());
             Ok(ExitCode::SUCCESS)
         }
-        Cmd::Enroll { kb, type_name, id, face, origin, keep_out, image } => enroll(&kb, &type_name, id, face, origin, keep_out, &image),
+        Cmd::Enroll { kb, dir, type_name, id, face, origin, keep_out, image } => match (dir, type_name, id, face, image) {
+            (Some(dir), ..) => enroll_folder(&kb, &dir),
+            (None, Some(type_name), Some(id), Some(face), Some(image)) => enroll(&kb, &type_name, id, face, origin, keep_out, &image),
+            // clap requires all four without --dir.
+            _ => Err(anyhow::anyhow!("enroll needs --dir DIR, or --type, --id, --face and an IMAGE")),
+        },
         Cmd::Simulate { out, count, seed, noise, width, height, cell } => {
             simulate(&out, count, SimConfig { width, height, seed, noise }, cell)
         }
@@ -287,6 +301,79 @@ fn enroll(
     let replaced = kb.enroll(t, image.display().to_string())?;
     kb.save(kb_path)?;
     println!("{} {summary} in {}", if replaced { "replaced" } else { "enrolled" }, kb_path.display());
+    Ok(ExitCode::SUCCESS)
+}
+
+/// A folder of `TYPE_FACE` templates: every image compiled (on every core), then enrolled and
+/// the knowledge base written once; any image that fails fails the command and writes nothing,
+/// naming every such image, so that a catalogue is never half enrolled.
+fn enroll_folder(kb_path: &Path, dir: &Path) -> Result<ExitCode> {
+    let t0 = std::time::Instant::now();
+    let mut kb = KnowledgeBase::load_or_new(kb_path)?;
+    let (plan, ignored) = lfi_bridge::kb::plan_folder(dir, &kb)?;
+    for path in &ignored {
+        let why = if path.is_dir() { "a sub-folder" } else { "not an image named TYPE_up or TYPE_down" };
+        tracing::warn!(file = %path.display(), "not enrolled: {why}");
+    }
+    let params = Params::default();
+    let compile = |f: &lfi_bridge::kb::FolderTemplate| -> Result<Template> {
+        let (img, notes) = imageio::read_gray(&f.path).with_context(|| format!("cannot read {}", f.path.display()))?;
+        for n in notes {
+            tracing::warn!(image = %f.path.display(), "{n}");
+        }
+        Template::from_image(img.view()?, &f.type_name, f.id, f.face, None, &params)
+            .with_context(|| format!("cannot enroll {}", f.path.display()))
+    };
+    // Templates compile independently: one chunk of the list per core.
+    let workers = std::thread::available_parallelism().map_or(1, |n| n.get()).min(plan.len());
+    let chunk = plan.len().div_ceil(workers);
+    let mut compiled: Vec<Option<Result<Template>>> = (0..plan.len()).map(|_| None).collect();
+    std::thread::scope(|s| {
+        for (slots, files) in compiled.chunks_mut(chunk).zip(plan.chunks(chunk)) {
+            let compile = &compile;
+            s.spawn(move || {
+                for (slot, f) in slots.iter_mut().zip(files) {
+                    *slot = Some(compile(f));
+                }
+            });
+        }
+    });
+    let mut failed = Vec::new();
+    let mut templates = Vec::with_capacity(plan.len());
+    for (f, r) in plan.iter().zip(compiled) {
+        match r {
+            Some(Ok(t)) => templates.push((f, t)),
+            Some(Err(e)) => failed.push(format!("{e:#}")),
+            None => failed.push(format!("{}: not compiled (its worker thread stopped)", f.path.display())),
+        }
+    }
+    if !failed.is_empty() {
+        anyhow::bail!(
+            "{} of {} templates in {} failed; {} not written:\n  {}",
+            failed.len(),
+            plan.len(),
+            dir.display(),
+            kb_path.display(),
+            failed.join("\n  ")
+        );
+    }
+    let mut replaced = 0;
+    for (f, t) in templates {
+        println!("{} {} (id {}) from {}", t.type_name, t.face, t.type_id, f.path.display());
+        replaced += usize::from(
+            kb.enroll(t, f.path.display().to_string())
+                .with_context(|| format!("{}; {} not written", f.path.display(), kb_path.display()))?,
+        );
+    }
+    kb.save(kb_path)?;
+    println!(
+        "enrolled {} templates ({} replaced), {} types in {}, in {:.1} s",
+        plan.len(),
+        replaced,
+        kb.type_count(),
+        kb_path.display(),
+        t0.elapsed().as_secs_f64()
+    );
     Ok(ExitCode::SUCCESS)
 }
 
