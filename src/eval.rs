@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use crate::truth::{EstimatePart, TruthRecord, UNCOVERED};
+use crate::truth::{Catalog, EstimatePart, TruthRecord, UNCOVERED};
 use crate::vision::geometry::angle_diff_deg;
 
 /// Farthest a prediction may be from a true part's centroid to be its estimate, pixels.
@@ -115,6 +115,52 @@ pub struct Report {
     pub by_noise: Vec<GroupReport>,
     /// Every false accept, described (image, what was accepted, what was there).
     pub false_accept_details: Vec<String>,
+    /// How the parts of never-enrolled types ended, by REASON (`accepted` and `not found` too):
+    /// an *unknown type* tells the operator to enrol it, *touching* or *ambiguous* does not.
+    pub unknown_by_reason: BTreeMap<String, usize>,
+    /// Every part named as another type than its own, by pair, accepted or not.
+    pub taken_for: Vec<TakenFor>,
+    /// With a catalogue: each member of a revision family, how often it was picked and how often
+    /// taken for a sibling.
+    pub families: Vec<FamilyMember>,
+}
+
+/// Parts of one type named as another.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct TakenFor {
+    /// The type the parts are.
+    pub truth: String,
+    /// The type they were named as.
+    pub named: String,
+    /// Both in one revision family (from the catalogue).
+    pub siblings: bool,
+    /// Of those, accepted (each a false accept).
+    pub accepted: usize,
+    /// Of those, rejected.
+    pub rejected: usize,
+}
+
+/// One member of a revision family and how its parts ended.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct FamilyMember {
+    /// The family.
+    pub family: String,
+    /// The type.
+    pub type_name: String,
+    /// The type it is a revision of.
+    pub parent: Option<String>,
+    /// Enrolled.
+    pub known: bool,
+    /// Its parts in the scenes.
+    pub parts: usize,
+    /// Accepted with the right type, face and pose.
+    pub picked: usize,
+    /// Accepted as a sibling (false accepts).
+    pub sibling_accepted: usize,
+    /// Rejected while named as a sibling.
+    pub sibling_rejected: usize,
+    /// Rejected, by REASON (`not found` when no estimate was near).
+    pub rejected_by_reason: BTreeMap<String, usize>,
 }
 
 /// The `q` quantile of `v` (0..=1), interpolated between the nearest ranks; NaN when `v` is
@@ -168,8 +214,107 @@ impl Acc {
     }
 }
 
+/// Each true part's estimate (index into `o.parts`), and which estimates are some part's:
+/// closest pairs first, one-to-one, within [`MATCH_RADIUS`].
+fn pair_up(o: &Observation) -> (Vec<Option<usize>>, Vec<bool>) {
+    let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+    for (ti, t) in o.truth.parts.iter().enumerate() {
+        for (pi, p) in o.parts.iter().enumerate() {
+            let d = (t.x_px - p.x_px).hypot(t.y_px - p.y_px);
+            if d <= MATCH_RADIUS {
+                pairs.push((d, ti, pi));
+            }
+        }
+    }
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut t_match = vec![None; o.truth.parts.len()];
+    let mut p_used = vec![false; o.parts.len()];
+    for (_, ti, pi) in pairs {
+        if t_match[ti].is_none() && !p_used[pi] {
+            t_match[ti] = Some(pi);
+            p_used[pi] = true;
+        }
+    }
+    (t_match, p_used)
+}
+
 /// Scores observations; `enrolled` are the type names in the knowledge base.
 pub fn evaluate(obs: &[Observation], enrolled: &[String]) -> Report {
+    evaluate_catalogue(obs, enrolled, None)
+}
+
+/// [`evaluate`], and with a catalogue the story of its revision families.
+pub fn evaluate_catalogue(obs: &[Observation], enrolled: &[String], catalog: Option<&Catalog>) -> Report {
+    let mut report = evaluate_frames(obs, enrolled);
+    let family_of = |name: &str| catalog.and_then(|c| c.types.iter().find(|t| t.name == name)).and_then(|t| t.family.clone());
+    let mut taken: BTreeMap<(String, String), (usize, usize)> = BTreeMap::new();
+    let mut members: Vec<FamilyMember> = catalog
+        .map(|c| {
+            c.types
+                .iter()
+                .filter_map(|t| {
+                    Some(FamilyMember {
+                        family: t.family.clone()?,
+                        type_name: t.name.clone(),
+                        parent: t.parent.clone(),
+                        known: t.known,
+                        parts: 0,
+                        picked: 0,
+                        sibling_accepted: 0,
+                        sibling_rejected: 0,
+                        rejected_by_reason: BTreeMap::new(),
+                    })
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    members.sort_by(|a, b| (&a.family, &a.type_name).cmp(&(&b.family, &b.type_name)));
+    for o in obs {
+        let (t_match, _) = pair_up(o);
+        for (ti, t) in o.truth.parts.iter().enumerate() {
+            let pred = t_match[ti].map(|pi| &o.parts[pi]);
+            let known = enrolled.iter().any(|n| n == &t.type_name);
+            let accepted = pred.is_some_and(|p| p.accepted);
+            let named = pred.and_then(|p| p.type_name.clone()).filter(|n| *n != t.type_name);
+            if let Some(n) = &named {
+                let e = taken.entry((t.type_name.clone(), n.clone())).or_default();
+                if accepted { e.0 += 1 } else { e.1 += 1 }
+            }
+            let reason = || pred.map_or("not found".to_string(), |p| p.reason.clone());
+            if !known {
+                *report.unknown_by_reason.entry(if accepted { "accepted".to_string() } else { reason() }).or_default() += 1;
+            }
+            if let Some(m) = members.iter_mut().find(|m| m.type_name == t.type_name) {
+                m.parts += 1;
+                let sibling = named.as_deref().is_some_and(|n| family_of(n).as_deref() == Some(m.family.as_str()));
+                let pose_ok = pred.is_some_and(|p| {
+                    named.is_none()
+                        && p.face.as_deref() == Some(t.face.as_str())
+                        && angle_diff_deg(p.angle_deg, t.angle_deg).abs() <= POSE_TOLERANCE_DEG
+                });
+                match (accepted, sibling) {
+                    (true, true) => m.sibling_accepted += 1,
+                    (true, false) if known && pose_ok => m.picked += 1,
+                    (true, false) => *m.rejected_by_reason.entry("accepted wrong".into()).or_default() += 1,
+                    (false, true) => m.sibling_rejected += 1,
+                    (false, false) => *m.rejected_by_reason.entry(reason()).or_default() += 1,
+                }
+            }
+        }
+    }
+    report.taken_for = taken
+        .into_iter()
+        .map(|((truth, named), (accepted, rejected))| {
+            let siblings = family_of(&truth).is_some_and(|f| family_of(&named).as_deref() == Some(f.as_str()));
+            TakenFor { truth, named, siblings, accepted, rejected }
+        })
+        .collect();
+    report.families = members;
+    report
+}
+
+/// The per-frame tables and false accepts.
+fn evaluate_frames(obs: &[Observation], enrolled: &[String]) -> Report {
     let mut overall = Acc::default();
     let mut by_cond: BTreeMap<String, Acc> = BTreeMap::new();
     let mut by_type: BTreeMap<String, Acc> = BTreeMap::new();
@@ -183,25 +328,7 @@ pub fn evaluate(obs: &[Observation], enrolled: &[String]) -> Report {
             acc.frames += 1;
             acc.latency.push(o.elapsed_ms);
         }
-        // Closest pairs first, one-to-one.
-        let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
-        for (ti, t) in o.truth.parts.iter().enumerate() {
-            for (pi, p) in o.parts.iter().enumerate() {
-                let d = (t.x_px - p.x_px).hypot(t.y_px - p.y_px);
-                if d <= MATCH_RADIUS {
-                    pairs.push((d, ti, pi));
-                }
-            }
-        }
-        pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let mut t_match = vec![None; o.truth.parts.len()];
-        let mut p_used = vec![false; o.parts.len()];
-        for (_, ti, pi) in pairs {
-            if t_match[ti].is_none() && !p_used[pi] {
-                t_match[ti] = Some(pi);
-                p_used[pi] = true;
-            }
-        }
+        let (t_match, p_used) = pair_up(o);
         for (ti, t) in o.truth.parts.iter().enumerate() {
             let known = enrolled.iter().any(|n| n == &t.type_name);
             let pred = t_match[ti].map(|pi| &o.parts[pi]);
@@ -283,6 +410,9 @@ pub fn evaluate(obs: &[Observation], enrolled: &[String]) -> Report {
         by_type: by_type.into_iter().map(|(k, v)| v.report(k)).collect(),
         by_noise: by_noise.into_iter().map(|(k, v)| v.report(format!("sigma~{k}"))).collect(),
         false_accept_details: details,
+        unknown_by_reason: BTreeMap::new(),
+        taken_for: Vec::new(),
+        families: Vec::new(),
     }
 }
 
@@ -361,6 +491,39 @@ pub fn render_text(r: &Report) -> String {
             s.push_str(&format!("  {d}\n"));
         }
     }
+    let counts = |m: &BTreeMap<String, usize>| m.iter().map(|(k, v)| format!("{k} {v}")).collect::<Vec<_>>().join(", ");
+    if !r.unknown_by_reason.is_empty() {
+        s.push_str(&format!("unknown parts (types not enrolled), how they ended: {}\n", counts(&r.unknown_by_reason)));
+    }
+    if !r.taken_for.is_empty() {
+        s.push_str("parts named as another type (accepted / rejected):\n");
+        for t in &r.taken_for {
+            let sib = if t.siblings { " (siblings)" } else { "" };
+            s.push_str(&format!("  {} as {}{sib}: {} / {}\n", t.truth, t.named, t.accepted, t.rejected));
+        }
+    }
+    if !r.families.is_empty() {
+        s.push_str("\nrevision families (catalog.json)\n");
+        s.push_str(&format!(
+            "{:<8} {:<10} {:<10} {:>5} {:>5} {:>6} {:>9} {:>9}  {}\n",
+            "family", "type", "parent", "known", "parts", "picked", "sib.acc", "sib.rej", "otherwise, by reason"
+        ));
+        for m in &r.families {
+            s.push_str(&format!(
+                "{:<8} {:<10} {:<10} {:>5} {:>5} {:>6} {:>9} {:>9}  {}\n",
+                m.family,
+                m.type_name,
+                m.parent.as_deref().unwrap_or("-"),
+                if m.known { "yes" } else { "no" },
+                m.parts,
+                m.picked,
+                m.sibling_accepted,
+                m.sibling_rejected,
+                counts(&m.rejected_by_reason)
+            ));
+        }
+        s.push_str("(sib.acc = accepted as a sibling of its family: a false accept; sib.rej = rejected while named as a sibling; otherwise: rejected by REASON, not found, or accepted wrong)\n");
+    }
     s
 }
 
@@ -433,5 +596,70 @@ mod tests {
         assert_eq!(r.false_accept_details.len(), 2);
         let text = render_text(&r);
         assert!(text.contains("empty") && text.contains("false accepts:"));
+    }
+
+    fn named(t: &str, accepted: bool, reason: &str, x: f64) -> EstimatePart {
+        EstimatePart { reason: reason.into(), ..part(t, "up", 0.0, x, 100.0, accepted) }
+    }
+
+    /// A family P (parent) and R (revision), an unseen revision N of R and an unknown X: each
+    /// sibling taken for another is counted per member, the unknowns by how they ended.
+    #[test]
+    fn tells_the_catalogues_story() {
+        use crate::truth::{CatalogType, parse_catalog};
+        let ty = |name: &str, known: bool, family: Option<&str>, parent: Option<&str>| CatalogType {
+            name: name.into(),
+            known,
+            family: family.map(Into::into),
+            revision: None,
+            parent: parent.map(Into::into),
+            change: None,
+        };
+        let catalog = Catalog {
+            types: vec![
+                ty("P", true, Some("F1"), None),
+                ty("R", true, Some("F1"), Some("P")),
+                ty("N", false, Some("F1"), Some("R")),
+                ty("X", false, None, None),
+            ],
+        };
+        let enrolled = vec!["P".to_string(), "R".to_string()];
+        let scene =
+            |parts: Vec<TruthPart>, est: Vec<EstimatePart>| Observation { truth: truth("multi", parts), parts: est, elapsed_ms: 1.0 };
+        let obs = vec![
+            // P picked, R taken for P (accepted), R named P but rejected as ambiguous.
+            scene(
+                vec![tp("P", "up", 0.0, 100.0, 100.0), tp("R", "up", 0.0, 400.0, 100.0), tp("R", "up", 0.0, 700.0, 100.0)],
+                vec![named("P", true, "ok", 100.0), named("P", true, "ok", 400.0), named("P", false, "ambiguous", 700.0)],
+            ),
+            // N accepted as R; X rejected as an unknown type; R not found at all.
+            scene(
+                vec![tp("N", "up", 0.0, 100.0, 100.0), tp("X", "up", 0.0, 400.0, 100.0), tp("R", "up", 0.0, 900.0, 100.0)],
+                vec![
+                    named("R", true, "ok", 100.0),
+                    EstimatePart { type_name: None, face: None, ..named("P", false, "unknown type", 400.0) },
+                ],
+            ),
+        ];
+        let r = evaluate_catalogue(&obs, &enrolled, Some(&catalog));
+        assert_eq!(r.unknown_by_reason, BTreeMap::from([("accepted".to_string(), 1), ("unknown type".to_string(), 1)]));
+        let pairs: Vec<_> = r.taken_for.iter().map(|t| (t.truth.as_str(), t.named.as_str(), t.siblings, t.accepted, t.rejected)).collect();
+        assert_eq!(pairs, [("N", "R", true, 1, 0), ("R", "P", true, 1, 1)]);
+        let row = |name: &str| r.families.iter().find(|m| m.type_name == name).unwrap();
+        assert_eq!((row("P").parts, row("P").picked, row("P").sibling_accepted), (1, 1, 0));
+        assert_eq!((row("R").parts, row("R").picked, row("R").sibling_accepted, row("R").sibling_rejected), (3, 0, 1, 1));
+        assert_eq!(row("R").rejected_by_reason, BTreeMap::from([("not found".to_string(), 1)]));
+        assert_eq!((row("N").known, row("N").sibling_accepted), (false, 1));
+        assert!(r.families.iter().all(|m| m.type_name != "X"), "a type of no family has no row");
+        let text = render_text(&r);
+        assert!(text.contains("revision families") && text.contains("R as P (siblings): 1 / 1"), "{text}");
+        // The catalogue format of ../shared/samples-catalog.
+        let c = parse_catalog(
+            r#"{"types": [{"name": "T005", "known": true, "family": "F01", "revision": 1, "parent": "T003", "change": {"kind": "add_notch", "what": "extra notch 3.2 mm deep", "delta_mm": 3.23, "hausdorff_mm": 4.63}, "size_mm": [93.2, 86.5, 37.2]}]}"#,
+            "catalog.json",
+        )
+        .unwrap();
+        assert_eq!(c.types[0].change.as_ref().map(|c| c.delta_mm), Some(3.23));
+        assert!(parse_catalog("{}", "catalog.json").unwrap_err().starts_with("catalog.json:"));
     }
 }

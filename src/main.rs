@@ -143,6 +143,10 @@ enum Cmd {
         kb: PathBuf,
         #[arg(long)]
         truth: PathBuf,
+        /// A catalogue's `catalog.json` (types, revision families): adds how each family member
+        /// was taken for a sibling. Default: `catalog.json` beside the truth file, when there.
+        #[arg(long)]
+        catalog: Option<PathBuf>,
         #[arg(long)]
         json: bool,
     },
@@ -211,7 +215,7 @@ fn main() -> ExitCode {
         }
         Cmd::Map { config, camera, points } => map(&config, camera, &points),
         Cmd::Estimate { kb, json, overlay_dir, repeat, images } => estimate(&kb, json, overlay_dir.as_deref(), repeat.max(1), &images),
-        Cmd::Eval { kb, truth, json } => evaluate(&kb, &truth, json),
+        Cmd::Eval { kb, truth, catalog, json } => evaluate(&kb, &truth, catalog.as_deref(), json),
     };
     match result {
         Ok(code) => code,
@@ -695,7 +699,7 @@ fn median_run(mut runs: Vec<(f64, lfi_bridge::vision::FrameEstimate)>) -> (f64, 
     (ms, fe)
 }
 
-fn evaluate(kb_path: &Path, truth_path: &Path, json: bool) -> Result<ExitCode> {
+fn evaluate(kb_path: &Path, truth_path: &Path, catalog_path: Option<&Path>, json: bool) -> Result<ExitCode> {
     let (est, enrolled) = load_estimator(kb_path)?;
     let text = std::fs::read_to_string(truth_path).with_context(|| format!("cannot read truth {}", truth_path.display()))?;
     let records = parse_truth(&text, &truth_path.display().to_string()).map_err(anyhow::Error::msg)?;
@@ -703,6 +707,15 @@ fn evaluate(kb_path: &Path, truth_path: &Path, json: bool) -> Result<ExitCode> {
         bail!("truth {} has no records", truth_path.display());
     }
     let base = truth_path.parent().unwrap_or(Path::new("."));
+    let beside = base.join("catalog.json");
+    let catalog_path = catalog_path.map(Path::to_path_buf).or_else(|| beside.is_file().then_some(beside));
+    let catalog = match &catalog_path {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).with_context(|| format!("cannot read catalogue {}", p.display()))?;
+            Some(lfi_bridge::truth::parse_catalog(&text, &p.display().to_string()).map_err(anyhow::Error::msg)?)
+        }
+        None => None,
+    };
     let pb = bar(records.len() as u64, "estimating");
     let mut obs = Vec::with_capacity(records.len());
     let mut errors = Vec::new();
@@ -725,7 +738,7 @@ fn evaluate(kb_path: &Path, truth_path: &Path, json: bool) -> Result<ExitCode> {
         pb.inc(1);
     }
     pb.finish_and_clear();
-    let report = eval::evaluate(&obs, &enrolled);
+    let report = eval::evaluate_catalogue(&obs, &enrolled, catalog.as_ref());
     if json {
         let mut v = serde_json::to_value(&report)?;
         v["frame_errors"] = serde_json::to_value(&errors)?;

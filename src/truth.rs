@@ -108,6 +108,51 @@ impl EstimatePart {
     }
 }
 
+/// What a catalogue says of its types (`catalog.json` beside a catalogue's `truth.jsonl`): which
+/// are enrolled, and which are design revisions of which.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Catalog {
+    /// Every type of the catalogue, enrolled or not.
+    pub types: Vec<CatalogType>,
+}
+
+/// One type of a catalogue.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CatalogType {
+    /// Its type name, as in the truth.
+    pub name: String,
+    /// Enrolled (false: a type the product must reject, e.g. an unseen revision).
+    pub known: bool,
+    /// The revision family it belongs to, if any.
+    #[serde(default)]
+    pub family: Option<String>,
+    /// Its revision within the family (0: the first).
+    #[serde(default)]
+    pub revision: Option<u32>,
+    /// The type it is a revision of.
+    #[serde(default)]
+    pub parent: Option<String>,
+    /// How it differs from its parent.
+    #[serde(default)]
+    pub change: Option<CatalogChange>,
+}
+
+/// A revision's one local change of outline.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CatalogChange {
+    /// What kind of change (`add_notch`, `longer_lug`, ...).
+    pub kind: String,
+    /// In words.
+    pub what: String,
+    /// How far the outline moves, millimetres.
+    pub delta_mm: f64,
+}
+
+/// Parses a catalogue's `catalog.json`; errors name the file.
+pub fn parse_catalog(text: &str, origin: &str) -> Result<Catalog, String> {
+    serde_json::from_str(text).map_err(|e| format!("{origin}: {e}"))
+}
+
 /// Parses a truth file's text; errors name the line.
 pub fn parse_truth(text: &str, origin: &str) -> Result<Vec<TruthRecord>, String> {
     text.lines()
