@@ -286,8 +286,11 @@ fn enroll(
     for n in notes {
         tracing::warn!(image = %image.display(), "{n}");
     }
-    let mut t = Template::from_image(img.view()?, type_name, id, face, origin, &Params::default())
+    let (mut t, left_out) = Template::learn(img.view()?, type_name, id, face, origin, &Params::default())
         .with_context(|| format!("cannot enroll {}", image.display()))?;
+    if let Some(l) = left_out {
+        tracing::warn!(image = %image.display(), "{l}");
+    }
     t.keep_out = keep_out;
     let summary = format!(
         "{} {} (id {}): {} outline points, {} line features, area {:.0} px^2, outline centroid ({:.2}, {:.2}), origin ({:.2}, {:.2})",
@@ -325,8 +328,12 @@ fn enroll_folder(kb_path: &Path, dir: &Path) -> Result<ExitCode> {
         for n in notes {
             tracing::warn!(image = %f.path.display(), "{n}");
         }
-        Template::from_image(img.view()?, &f.type_name, f.id, f.face, None, &params)
-            .with_context(|| format!("cannot enroll {}", f.path.display()))
+        let (t, left_out) = Template::learn(img.view()?, &f.type_name, f.id, f.face, None, &params)
+            .with_context(|| format!("cannot enroll {}", f.path.display()))?;
+        if let Some(l) = left_out {
+            tracing::warn!(image = %f.path.display(), "{l}");
+        }
+        Ok(t)
     };
     // Templates compile independently: one chunk of the list per core.
     let workers = std::thread::available_parallelism().map_or(1, |n| n.get()).min(plan.len());

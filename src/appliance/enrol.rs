@@ -136,8 +136,11 @@ impl CameraHandle {
         // Held to the end: a job change waits, so the template goes into the knowledge base of
         // the job it was cut under, and the estimator built on it is that job's.
         let job = self.job.lock().unwrap_or_else(|p| p.into_inner());
-        let template = Template::from_image(view, &req.type_name, req.id, req.face, None, &job.params)
+        let (template, left_out) = Template::learn(view, &req.type_name, req.id, req.face, None, &job.params)
             .map_err(|source| EnrolError::Template { part: req.part, source })?;
+        if let Some(l) = left_out {
+            tracing::warn!(part = req.part, type_name = %req.type_name, "enrolment: {l}");
+        }
         let from = if label.is_empty() { "the current frame".to_string() } else { label };
         let mut kb = self.templates.lock().unwrap_or_else(|p| p.into_inner()).clone();
         let replaced = kb.enroll(template, format!("{}: {from}, part {}", req.by, req.part))?;

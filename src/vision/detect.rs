@@ -105,6 +105,61 @@ pub struct DetectParams {
     pub min_area: f64,
     /// Fragments enclosing at least this many frame pixels count as debris.
     pub min_debris_area: f64,
+    /// Edges of small material touching the image's edge (a stain or speck of the belt cut by
+    /// it) are dropped before the closing: for a template image, where the closing made for
+    /// scenes would join such material to the part and cut the part by the border. Off in scenes,
+    /// where a part cut by the frame's edge is itself such an edge and is judged at the border.
+    pub drop_border_specks: bool,
+}
+
+/// Edge chains touching the image's edge whose bounding box is smaller than this fraction of the
+/// image's short side are a speck at the border, not a part.
+const BORDER_SPECK: f64 = 0.25;
+
+/// The 8-connected chains of `edges` (8-bit, 0 or 255) that come within `reach` pixels of the
+/// image's edge (where their closed region would touch the border): each chain's label in
+/// `labels` and the longer side of its bounding box.
+fn chains_at_border(edges: &Mat, reach: i32, labels: &mut Mat) -> Result<Vec<(i32, i32)>, FrameError> {
+    let (w, h) = (edges.cols(), edges.rows());
+    let (mut stats, mut centroids) = (Mat::default(), Mat::default());
+    let n = imgproc::connected_components_with_stats(edges, labels, &mut stats, &mut centroids, 8, core::CV_32S)?;
+    let mut out = Vec::new();
+    for k in 1..n {
+        let at = |c: i32| stats.at_2d::<i32>(k, c).copied();
+        let (x, y, bw, bh) =
+            (at(imgproc::CC_STAT_LEFT)?, at(imgproc::CC_STAT_TOP)?, at(imgproc::CC_STAT_WIDTH)?, at(imgproc::CC_STAT_HEIGHT)?);
+        if x <= reach || y <= reach || x + bw >= w - reach || y + bh >= h - reach {
+            out.push((k, bw.max(bh)));
+        }
+    }
+    Ok(out)
+}
+
+/// Clears from `edges` every chain at the border (see [`chains_at_border`]) that fits in a box
+/// of [`BORDER_SPECK`] of the image's short side.
+fn drop_border_specks(edges: &mut Mat, reach: i32) -> Result<(), FrameError> {
+    let limit = (BORDER_SPECK * edges.cols().min(edges.rows()) as f64) as i32;
+    let mut labels = Mat::default();
+    let specks: Vec<i32> = chains_at_border(edges, reach, &mut labels)?.into_iter().filter(|c| c.1 < limit).map(|c| c.0).collect();
+    if specks.is_empty() {
+        return Ok(());
+    }
+    let labels = labels.data_typed::<i32>()?.to_vec();
+    for (e, l) in edges.data_bytes_mut()?.iter_mut().zip(labels) {
+        if specks.contains(&l) {
+            *e = 0;
+        }
+    }
+    Ok(())
+}
+
+/// Whether an edge chain larger than a speck (see [`BORDER_SPECK`]) comes within the closing's
+/// reach of the image's edge: in a template image, a part the edge cuts. Its region may not
+/// touch the border at all: the cut outline is an open chain that encloses nothing, and the
+/// largest region found is then something inside the part.
+pub fn cut_by_border(coarse: &Coarse, closing: i32) -> Result<bool, FrameError> {
+    let limit = (BORDER_SPECK * coarse.edges.cols().min(coarse.edges.rows()) as f64) as i32;
+    Ok(chains_at_border(&coarse.edges, 1 + closing / 2, &mut Mat::default())?.iter().any(|c| c.1 >= limit))
 }
 
 /// The factor actually used: the requested one, reduced for small frames so that the decimated
@@ -275,6 +330,10 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
     let auto = otsu.min((6.0 * median_gradient(&blurred)?).max(24.0));
     let mut edges = Mat::default();
     imgproc::canny(&blurred, &mut edges, p.canny_low_ratio * auto, auto, 3, false)?;
+    if p.drop_border_specks {
+        // The blob's border test allows 1 px; the closing's dilation adds its radius.
+        drop_border_specks(&mut edges, 1 + p.closing / 2)?;
+    }
     let kernel = imgproc::get_structuring_element(imgproc::MORPH_ELLIPSE, Size::new(p.closing, p.closing), Point::new(-1, -1))?;
     let mut dilated = Mat::default();
     imgproc::dilate(&edges, &mut dilated, &kernel, Point::new(-1, -1), 1, core::BORDER_CONSTANT, core::Scalar::all(0.0))?;
@@ -423,7 +482,15 @@ mod tests {
         };
         fill(150, 500, 200, 600);
         fill(510, 900, 610, 950);
-        let p = DetectParams { factor: 4, blur_sigma: 1.5, canny_low_ratio: 0.4, closing: 5, min_area: 20_000.0, min_debris_area: 500.0 };
+        let p = DetectParams {
+            factor: 4,
+            blur_sigma: 1.5,
+            canny_low_ratio: 0.4,
+            closing: 5,
+            min_area: 20_000.0,
+            min_debris_area: 500.0,
+            drop_border_specks: false,
+        };
         let c = detect(img.view().unwrap(), &p).unwrap();
         let mut areas: Vec<f64> = c.blobs.iter().map(|b| b.area).collect();
         areas.sort_by(f64::total_cmp);

@@ -31,7 +31,7 @@ use std::time::Instant;
 pub use frame::{FrameError, GrayImage, GrayView, MIN_SIDE};
 pub use geometry::Pt;
 pub use lines::{LineDetector, LineFeature, Segment};
-pub use template::{KeepOut, Library, Template, TemplateError};
+pub use template::{KeepOut, LeftOut, Library, Template, TemplateError};
 
 use boundary::RefineParams;
 use decide::{Decision, Evidence, Named, NextFit, OutlineFit, RegionFit, Verdict};
@@ -247,6 +247,7 @@ impl Params {
             canny_low_ratio: self.canny_low_ratio,
             closing: self.closing,
             min_area,
+            drop_border_specks: false,
         }
     }
     pub(crate) fn refine_params(&self, factor: usize) -> RefineParams {

@@ -4,7 +4,7 @@
 use super::boundary;
 use super::clump::ShapeModel;
 use super::correlate::{Correlator, Spectrum};
-use super::detect;
+use super::detect::{self, DetectParams};
 use super::frame::{FrameError, GrayView};
 use super::geometry::{Pt, area_centroid, bounds};
 use super::lines::{self, Segment};
@@ -79,6 +79,45 @@ pub enum TemplateError {
     EmptyName,
 }
 
+/// Material of a template image that is not the part: touching the image's edge, joined to the
+/// part by the scenes' coarse closing, and left out.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LeftOut;
+
+impl std::fmt::Display for LeftOut {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("small material touching the image border (a stain or speck of the belt) lay within the closing's reach of the part and was left out")
+    }
+}
+
+/// The part's coarse region in a template image: the largest region, which must lie inside the
+/// image. The closing made for scenes can reach a stain or speck of the belt at the image's edge
+/// and join it to the part; so when the largest region touches the border, the edges of small
+/// material touching the border are dropped and the part is taken when its region then lies
+/// inside and keeps at least 80 % of the joined region's area. A part really cut by the border
+/// leaves a long edge chain at the border and is refused, whether or not the largest region
+/// touches it.
+fn part_region(image: GrayView<'_>, params: &Params, min_area: f64) -> Result<(detect::Coarse, usize, Option<LeftOut>), TemplateError> {
+    let largest = |c: &detect::Coarse| (0..c.blobs.len()).max_by(|&a, &b| c.blobs[a].area.total_cmp(&c.blobs[b].area));
+    let dp = params.detect_params(min_area, min_area);
+    let coarse = detect::detect(image, &dp)?;
+    let i = largest(&coarse).ok_or(TemplateError::NoPart { min_area })?;
+    if !coarse.blobs[i].touches_border {
+        if detect::cut_by_border(&coarse, dp.closing)? {
+            return Err(TemplateError::AtBorder);
+        }
+        return Ok((coarse, i, None));
+    }
+    let joined = coarse.blobs[i].area;
+    let apart = detect::detect(image, &DetectParams { drop_border_specks: true, ..dp })?;
+    match largest(&apart) {
+        Some(j) if !apart.blobs[j].touches_border && apart.blobs[j].area >= 0.8 * joined && !detect::cut_by_border(&apart, dp.closing)? => {
+            Ok((apart, j, Some(LeftOut)))
+        }
+        _ => Err(TemplateError::AtBorder),
+    }
+}
+
 impl Template {
     /// Learns a template from one clean image showing one part.
     pub fn from_image(
@@ -89,6 +128,19 @@ impl Template {
         origin: Option<Pt>,
         params: &Params,
     ) -> Result<Self, TemplateError> {
+        Self::learn(image, type_name, type_id, face, origin, params).map(|(t, _)| t)
+    }
+
+    /// [`Template::from_image`], and the material of the image that was left out, for the
+    /// enrolment to report.
+    pub fn learn(
+        image: GrayView<'_>,
+        type_name: &str,
+        type_id: u16,
+        face: Face,
+        origin: Option<Pt>,
+        params: &Params,
+    ) -> Result<(Self, Option<LeftOut>), TemplateError> {
         if type_name.trim().is_empty() {
             return Err(TemplateError::EmptyName);
         }
@@ -96,13 +148,9 @@ impl Template {
             return Err(TemplateError::ReservedId(0));
         }
         let min_area = 0.01 * (image.width() * image.height()) as f64;
-        let dp = params.detect_params(min_area, min_area);
         let noise = boundary::noise_sigma(image, &[]);
-        let coarse = detect::detect(image, &dp)?;
-        let blob = coarse.blobs.iter().max_by(|a, b| a.area.total_cmp(&b.area)).ok_or(TemplateError::NoPart { min_area })?;
-        if blob.touches_border {
-            return Err(TemplateError::AtBorder);
-        }
+        let (coarse, i, left_out) = part_region(image, params, min_area)?;
+        let blob = &coarse.blobs[i];
         let refined = boundary::refine(image, &blob.outline, noise, &params.refine_params(coarse.factor));
         let interior = super::clump::interior_edges(&coarse, &refined.outline, noise, refined.contrast);
         let outline = refined.outline;
@@ -118,7 +166,7 @@ impl Template {
             params.min_segment_fraction * diag,
         )?;
         let origin = origin.unwrap_or(Pt::new((image.width() as f64 - 1.0) / 2.0, (image.height() as f64 - 1.0) / 2.0));
-        Ok(Self {
+        let template = Self {
             type_name: type_name.trim().to_string(),
             type_id,
             face,
@@ -131,7 +179,8 @@ impl Template {
             segments,
             interior,
             keep_out: Vec::new(),
-        })
+        };
+        Ok((template, left_out))
     }
 
     /// Root-mean-square distance of the outline from the centroid: the part's size.
