@@ -77,6 +77,11 @@ enum Cmd {
         /// each kind with its touched-up points (plates/plates.json).
         #[arg(long)]
         cell: bool,
+        /// Instead of the three built-in parts, a generated catalogue of N types (T001...; from
+        /// the seed) with revision families and never-enrolled types (U01..., templates under
+        /// templates/unknown/), described in catalog.json.
+        #[arg(long, value_name = "N", conflicts_with = "cell", value_parser = clap::value_parser!(u16).range(1..=999))]
+        catalog: Option<u16>,
     },
     /// Calibrate a camera from images of a grid plate lying on the belt: lens and plane, written
     /// to a calibration file for `[camera.calibration] file`.
@@ -207,8 +212,8 @@ fn main() -> ExitCode {
             // clap requires all four without --dir.
             _ => Err(anyhow::anyhow!("enroll needs --dir DIR, or --type, --id, --face and an IMAGE")),
         },
-        Cmd::Simulate { out, count, seed, noise, width, height, cell } => {
-            simulate(&out, count, SimConfig { width, height, seed, noise }, cell)
+        Cmd::Simulate { out, count, seed, noise, width, height, cell, catalog } => {
+            simulate(&out, count, SimConfig { width, height, seed, noise }, cell, catalog)
         }
         Cmd::Calibrate { grid, cols, rows, pitch_mm, out, json, images } => {
             calibrate(lfi_bridge::plate::GridSpec { grid, cols, rows, pitch_mm }, &out, json, &images)
@@ -399,8 +404,14 @@ fn bar(len: u64, what: &str) -> ProgressBar {
     pb
 }
 
-fn simulate(out: &Path, count: u64, cfg: SimConfig, cell: bool) -> Result<ExitCode> {
-    let sim = if cell { Simulator::new(cfg)?.through_cell_camera() } else { Simulator::new(cfg)? };
+fn simulate(out: &Path, count: u64, cfg: SimConfig, cell: bool, catalog: Option<u16>) -> Result<ExitCode> {
+    let seed = cfg.seed;
+    let catalogue = catalog.map(|n| lfi_bridge::sim::catalog::generate(n as usize, seed));
+    let sim = match &catalogue {
+        Some(c) => Simulator::with_catalogue(cfg, c)?,
+        None if cell => Simulator::new(cfg)?.through_cell_camera(),
+        None => Simulator::new(cfg)?,
+    };
     if cell {
         write_plates(&sim, &out.join("plates"))?;
     }
@@ -411,6 +422,16 @@ fn simulate(out: &Path, count: u64, cfg: SimConfig, cell: bool) -> Result<ExitCo
     }
     for (name, face, img) in sim.templates()? {
         imageio::write_png(&templates.join(format!("{name}_{face}.png")), &img)?;
+    }
+    if let Some(c) = &catalogue {
+        let unknown = templates.join("unknown");
+        std::fs::create_dir_all(&unknown).with_context(|| format!("cannot create {}", unknown.display()))?;
+        for (name, face, img) in sim.unknown_templates()? {
+            imageio::write_png(&unknown.join(format!("{name}_{face}.png")), &img)?;
+        }
+        let path = out.join("catalog.json");
+        let text = serde_json::to_string_pretty(&lfi_bridge::truth::Catalog { types: c.types.clone() })?;
+        imageio::write_atomic(&path, text.as_bytes()).with_context(|| format!("cannot write {}", path.display()))?;
     }
     let pb = bar(count, "rendering");
     let mut lines = String::new();
@@ -429,7 +450,11 @@ fn simulate(out: &Path, count: u64, cfg: SimConfig, cell: bool) -> Result<ExitCo
     let truth = out.join("truth.jsonl");
     imageio::write_atomic(&truth, lines.as_bytes()).with_context(|| format!("cannot write {}", truth.display()))?;
     println!("wrote {count} scenes, {} templates and {}", sim.type_names().len() * 2, truth.display());
-    println!("types (enroll with ids in this order): {}; never enrolled: {}", sim.type_names().join(", "), sim.unknown_type_name());
+    println!(
+        "types (enroll with ids in this order): {}; never enrolled: {}",
+        sim.type_names().join(", "),
+        sim.unknown_type_names().join(", ")
+    );
     Ok(ExitCode::SUCCESS)
 }
 

@@ -3,6 +3,7 @@
 //! Scene `i` of a seed is the same whatever the count, so a failing scene can be rendered alone.
 //! Conditions cycle through [`CONDITIONS`]; `noise` scenes cycle through sigma 10, 20, 30, 40.
 
+pub mod catalog;
 pub mod models;
 pub mod optics;
 pub mod render;
@@ -105,7 +106,8 @@ pub enum SimError {
 pub struct Simulator {
     cfg: SimConfig,
     known: Vec<Prepared>,
-    unknown: Prepared,
+    /// Never enrolled: the "unknown" scenes' parts (one for the built-in models).
+    unknown: Vec<Prepared>,
     debris: Vec<Prepared>,
     px_per_mm: f64,
     optics: Option<optics::Optics>,
@@ -126,7 +128,7 @@ impl Simulator {
         let px_per_mm = 6.5 * cfg.width.min(cfg.height * 4 / 3) as f64 / 2592.0;
         Ok(Self {
             known: models::known().into_iter().map(Prepared::new).collect(),
-            unknown: Prepared::new(models::unknown()),
+            unknown: vec![Prepared::new(models::unknown())],
             debris: models::debris().into_iter().map(Prepared::new).collect(),
             px_per_mm,
             optics: None,
@@ -201,14 +203,23 @@ impl Simulator {
         o.to_flat(px).map(|f| o.to_robot(f))
     }
 
-    /// Names of the enrollable types, in id order (1, 2, 3...).
-    pub fn type_names(&self) -> Vec<&'static str> {
-        self.known.iter().map(|p| p.model.name).collect()
+    /// A simulator whose parts are a generated catalogue's (`catalog::generate`): scenes of every
+    /// condition draw from its enrolled types, and "unknown" scenes from its never-enrolled ones.
+    pub fn with_catalogue(cfg: SimConfig, catalogue: &catalog::Catalogue) -> Result<Self, SimError> {
+        let mut sim = Self::new(cfg)?;
+        sim.known = catalogue.known.iter().cloned().map(Prepared::new).collect();
+        sim.unknown = catalogue.unknown.iter().cloned().map(Prepared::new).collect();
+        Ok(sim)
     }
 
-    /// The name of the model that is never enrolled (the "unknown" scenes' part).
-    pub fn unknown_type_name(&self) -> &'static str {
-        self.unknown.model.name
+    /// Names of the enrollable types, in id order (1, 2, 3...).
+    pub fn type_names(&self) -> Vec<&str> {
+        self.known.iter().map(|p| p.model.name.as_str()).collect()
+    }
+
+    /// The names of the models that are never enrolled (the "unknown" scenes' parts).
+    pub fn unknown_type_names(&self) -> Vec<&str> {
+        self.unknown.iter().map(|p| p.model.name.as_str()).collect()
     }
 
     /// The templates enrolled as a user would: types 1, 2, 3 in [`Simulator::type_names`]
@@ -231,8 +242,19 @@ impl Simulator {
     /// One clean template per known type and face: the part at angle 0, its material centroid at
     /// the image centre.
     pub fn templates(&self) -> Result<Vec<(String, Face, GrayImage)>, SimError> {
+        self.templates_of(&self.known, 0)
+    }
+
+    /// The never-enrolled types' templates, as [`Simulator::templates`] makes them (for
+    /// inspection: a user does not enrol them).
+    pub fn unknown_templates(&self) -> Result<Vec<(String, Face, GrayImage)>, SimError> {
+        self.templates_of(&self.unknown, self.known.len())
+    }
+
+    /// Templates of `models`, their noise seeded from their index counted from `first`.
+    fn templates_of(&self, models: &[Prepared], first: usize) -> Result<Vec<(String, Face, GrayImage)>, SimError> {
         let mut out = Vec::new();
-        for (ti, prep) in self.known.iter().enumerate() {
+        for (ti, prep) in models.iter().enumerate().map(|(i, p)| (first + i, p)) {
             for (fi, face) in [Face::Up, Face::Down].into_iter().enumerate() {
                 let r = prep.radius * self.px_per_mm;
                 let half = (r + (0.12 * r).max(30.0)).ceil() as usize;
@@ -321,7 +343,8 @@ impl Simulator {
                 }
             }
             "unknown" => {
-                let u = &self.unknown;
+                // One draw more only where there is a choice: the built-in scenes stay as they were.
+                let u = if self.unknown.len() > 1 { &self.unknown[rng.random_range(0..self.unknown.len())] } else { &self.unknown[0] };
                 if let Some(pl) = self.free_spot(&mut rng, u, scale, &parts) {
                     parts.push((u, pl));
                 }
@@ -479,7 +502,7 @@ mod tests {
     fn material_centroid_of_a_disc_with_an_offset_hole() {
         use models::{Model, Shape};
         let m = Model {
-            name: "t",
+            name: "t".into(),
             material: vec![Shape::Circle { c: (0.0, 0.0), r: 10.0 }],
             holes: vec![Shape::Circle { c: (5.0, 0.0), r: 2.0 }],
             top: vec![],

@@ -73,7 +73,7 @@ pub struct Feature {
 #[derive(Debug, Clone)]
 pub struct Model {
     /// The type name it is enrolled under.
-    pub name: &'static str,
+    pub name: String,
     /// Union of these is the part's material ...
     pub material: Vec<Shape>,
     /// ... minus these through-holes.
@@ -151,7 +151,7 @@ fn feat(shape: Shape, look: Look) -> Feature {
 /// A cast bracket: irregular plate, a boss ring at one end, a lug at the other.
 pub fn bracket() -> Model {
     Model {
-        name: "bracket",
+        name: "bracket".into(),
         material: vec![
             Shape::Poly(vec![
                 (-44.0, -19.0),
@@ -185,7 +185,7 @@ pub fn bracket() -> Model {
 /// A forged flange: a hub with a big bore, an offset lug and two ears.
 pub fn flange() -> Model {
     Model {
-        name: "flange",
+        name: "flange".into(),
         material: vec![
             circle(0.0, 0.0, 40.0),
             capsule((0.0, 0.0), (50.0, -22.0), 11.0),
@@ -217,7 +217,7 @@ pub fn clevis() -> Model {
         (arc_c.0 + 28.0 * a.cos(), arc_c.1 - 28.0 * a.sin())
     };
     Model {
-        name: "clevis",
+        name: "clevis".into(),
         material: vec![
             Shape::Sector { c: arc_c, r_in: 23.5, r_out: 32.5, from_deg: 42.0, to_deg: 318.0 },
             Shape::Circle { c: end(42.0), r: 6.5 },
@@ -243,7 +243,7 @@ pub fn clevis() -> Model {
 /// An L-shaped lever: the simulator's "unknown" part, never enrolled.
 pub fn lever() -> Model {
     Model {
-        name: "lever",
+        name: "lever".into(),
         material: vec![Shape::Poly(vec![(-52.0, -26.0), (44.0, -26.0), (46.0, -9.0), (-18.0, -9.0), (-20.0, 31.0), (-52.0, 31.0)])],
         holes: vec![capsule((-4.0, -18.0), (24.0, -18.0), 3.2), circle(-41.0, 21.0, 4.0), circle(37.0, -18.0, 3.0)],
         top: vec![feat(capsule((-30.0, 14.0), (-12.0, -16.0), 2.5), Look::Raised)],
@@ -260,9 +260,9 @@ pub fn known() -> Vec<Model> {
 /// Debris that lies about on a real belt: a washer and a bolt (far smaller than any part).
 pub fn debris() -> Vec<Model> {
     vec![
-        Model { name: "washer", material: vec![ring(0.0, 0.0, 2.2, 4.6)], holes: vec![], top: vec![], bottom: vec![], rounded: 0.0 },
+        Model { name: "washer".into(), material: vec![ring(0.0, 0.0, 2.2, 4.6)], holes: vec![], top: vec![], bottom: vec![], rounded: 0.0 },
         Model {
-            name: "bolt",
+            name: "bolt".into(),
             material: vec![Shape::Poly(vec![
                 (-9.0, -1.6),
                 (5.0, -1.6),

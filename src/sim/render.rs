@@ -122,10 +122,11 @@ impl Prepared {
     }
 }
 
-/// x-intervals where a horizontal line at `y` is inside a shape (even-odd over its contours).
-fn spans(shape: &Shape, y: f64) -> Vec<(f64, f64)> {
+/// x-intervals where a horizontal line at `y` is inside a shape given as its contours
+/// (`Shape::contours`, even-odd).
+fn spans(contours: &[Vec<(f64, f64)>], y: f64) -> Vec<(f64, f64)> {
     let mut xs = Vec::new();
-    for c in shape.contours() {
+    for c in contours {
         let n = c.len();
         for i in 0..n {
             let (a, b) = (c[i], c[(i + 1) % n]);
@@ -157,11 +158,14 @@ pub fn material_moments(model: &Model) -> (f64, f64, f64) {
     let pts: Vec<(f64, f64)> = model.material.iter().flat_map(|s| s.contours()).flatten().collect();
     let (y0, y1) = pts.iter().fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.1), a.1.max(p.1)));
     let h = 0.01;
+    // Each shape's polygons once, not once per scanline.
+    let material: Vec<Vec<Vec<(f64, f64)>>> = model.material.iter().map(Shape::contours).collect();
+    let hole_contours: Vec<Vec<Vec<(f64, f64)>>> = model.holes.iter().map(Shape::contours).collect();
     let (mut area, mut mx, mut my) = (0.0, 0.0, 0.0);
     let mut y = y0 + h / 2.0;
     while y < y1 {
-        let mat = union(model.material.iter().flat_map(|s| spans(s, y)).collect());
-        let holes = union(model.holes.iter().flat_map(|s| spans(s, y)).collect());
+        let mat = union(material.iter().flat_map(|c| spans(c, y)).collect());
+        let holes = union(hole_contours.iter().flat_map(|c| spans(c, y)).collect());
         for &(a, b) in &mat {
             // Subtract the holes from [a, b].
             let mut cur = a;
