@@ -1,10 +1,13 @@
 #!/usr/bin/env bash
-# The accuracy evaluation behind the README's numbers, on all three sets at once: the built-in
-# simulator (fresh scenes of every condition), ../shared/samples and ../shared/samples-hard.
-# Each set's templates are enrolled exactly as a new user would (types A/B/C or the simulator's
-# three models as ids 1/2/3, both faces; the unknown type never). Usage:
-#   scripts/eval.sh [OUT_DIR]          (default target/eval; the simulated set is kept there)
-# Env: SIM_COUNT (scenes, default 180), SIM_SEED (default 11).
+# The accuracy evaluation behind the README's numbers, on all five sets at once: the built-in
+# simulator (fresh scenes of every condition), ../shared/samples, ../shared/samples-hard, the
+# simulator's generated 40-type catalogue and ../shared/samples-catalog. Each set's templates are
+# enrolled exactly as a new user would (types A/B/C or the simulator's three models as ids
+# 1/2/3, both faces; a catalogue's folder in one `enroll --dir`, ids in name order; the unknown
+# types never). Usage:
+#   scripts/eval.sh [OUT_DIR]          (default target/eval; the simulated sets are kept there)
+# Env: SIM_COUNT (scenes, default 180), SIM_SEED (default 11), CAT_COUNT (catalogue scenes,
+# default 90), CAT_TYPES (default 40).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/deps.sh
@@ -42,4 +45,23 @@ for set in samples samples-hard; do
   enroll_set "$dir" "$out/$set.kb.toml" A B C
   echo "== $set ($dir)"
   "$bin" eval --kb "$out/$set.kb.toml" --truth "$dir/truth.jsonl"
+done
+
+# The catalogues: the simulator's (generated from the seed) and the shared one, each enrolled
+# from its templates folder in one call (templates/unknown/ is never enrolled); eval reads the
+# catalog.json beside each truth file for the revision families' table.
+cat="$out/sim-catalog${CAT_TYPES:-40}-seed${SIM_SEED:-11}"
+if [ ! -f "$cat/truth.jsonl" ]; then
+  "$bin" simulate --out "$cat" --catalog "${CAT_TYPES:-40}" --seed "${SIM_SEED:-11}" --count "${CAT_COUNT:-90}" >/dev/null
+fi
+for set in "$cat" ../shared/samples-catalog; do
+  if [ ! -f "$set/truth.jsonl" ]; then
+    echo "== $set: truth.jsonl not found" >&2
+    exit 1
+  fi
+  kb="$out/$(basename "$set").kb.toml"
+  rm -f "$kb"
+  "$bin" enroll --kb "$kb" --dir "$set/templates" >/dev/null
+  echo "== $(basename "$set") ($set)"
+  "$bin" eval --kb "$kb" --truth "$set/truth.jsonl"
 done
