@@ -14,13 +14,15 @@
 //! LFI_PLC_SCENES=1 for one scene over and over instead of the nine of every condition).
 
 use std::path::Path;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering::Relaxed};
+use std::sync::atomic::Ordering::Relaxed;
 use std::time::{Duration, Instant};
 
 use lfi_bridge::config::Config;
 use lfi_bridge::registers::{addr, status};
 use tokio_modbus::prelude::*;
+
+#[path = "../tests/common/load.rs"]
+mod load;
 
 fn pct(v: &mut [f64], q: f64) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -135,41 +137,9 @@ fn main() {
         // 200 clients asking for the live frame while the PLC cycles.
         let web = running.http_addr.expect("the operator view is on");
         let (unloaded, unloaded_p99) = (pct(&mut lat, 0.5), pct(&mut lat, 0.99));
-        let (stop, answered) = (Arc::new(AtomicBool::new(false)), Arc::new(AtomicUsize::new(0)));
-        let load = {
-            let (stop, answered) = (stop.clone(), answered.clone());
-            std::thread::spawn(move || {
-                // SAFETY: setpriority on this thread's own id.
-                unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 19) };
-                let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
-                rt.block_on(async move {
-                    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-                    let clients: Vec<_> = (0..200)
-                        .map(|_| {
-                            let (stop, answered) = (stop.clone(), answered.clone());
-                            tokio::spawn(async move {
-                                while !stop.load(Relaxed) {
-                                    let Ok(mut s) = tokio::net::TcpStream::connect(web).await else { continue };
-                                    if s.write_all(b"GET /api/camera/1/frame.jpg HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
-                                        .await
-                                        .is_err()
-                                    {
-                                        continue;
-                                    }
-                                    let mut out = Vec::new();
-                                    if let Ok(Ok(_)) = tokio::time::timeout(Duration::from_secs(20), s.read_to_end(&mut out)).await {
-                                        answered.fetch_add(out.starts_with(b"HTTP/1.1 200") as usize, Relaxed);
-                                    }
-                                }
-                            })
-                        })
-                        .collect();
-                    for c in clients {
-                        let _ = c.await;
-                    }
-                })
-            })
-        };
+        let load = load::LiveFrameLoad::start(web, 200);
+        load.on.store(true, Relaxed);
+        let answered = load.answered.clone();
         while answered.load(Relaxed) == 0 {
             tokio::time::sleep(Duration::from_millis(1)).await;
         }
@@ -179,8 +149,8 @@ fn main() {
             lat3.push(cycle(&mut ctx).await.0);
         }
         let secs = t.elapsed().as_secs_f64();
-        stop.store(true, Relaxed);
-        tokio::task::spawn_blocking(move || load.join().unwrap()).await.unwrap();
+        let thread = load.stop();
+        tokio::task::spawn_blocking(move || thread.join().unwrap()).await.unwrap();
         let p99 = pct(&mut lat3, 0.99);
         println!("200 clients asking for the live frame over and over, while the PLC cycles:");
         println!("  live frames served {} ({:.0}/s)", answered.load(Relaxed), answered.load(Relaxed) as f64 / secs);

@@ -269,8 +269,7 @@ async fn a_silent_or_slow_http_client_is_closed_after_the_header_timeout() {
 /// median, is `cargo bench --bench plc`'s third table.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_hundred_parallel_live_frame_requests_do_not_slow_the_plc() {
-    use std::sync::Arc;
-    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering::Relaxed};
+    use std::sync::atomic::Ordering::Relaxed;
 
     use lfi_bridge::config::SourceConfig;
     use lfi_bridge::registers::status;
@@ -286,55 +285,9 @@ async fn two_hundred_parallel_live_frame_requests_do_not_slow_the_plc() {
     let web = running.http_addr.unwrap();
     let mut ctx = plc(running.modbus_addr, 1).await;
 
-    // The load: while `on`, 200 clients each request the live frame over and over. The clients
-    // are other machines, whose CPU is not the appliance's: the load runs at the lowest priority
-    // here, so that the measurement sees the appliance's share of the work.
-    let (on, idle, answered, stop) = (
-        Arc::new(AtomicBool::new(false)),
-        Arc::new(AtomicBool::new(true)),
-        Arc::new(AtomicUsize::new(0)),
-        Arc::new(AtomicBool::new(false)),
-    );
-    let load = {
-        let (on, idle, answered, stop) = (on.clone(), idle.clone(), answered.clone(), stop.clone());
-        std::thread::spawn(move || {
-            // SAFETY: setpriority on this thread's own id.
-            unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 19) };
-            let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
-            rt.block_on(async move {
-                use tokio::io::{AsyncReadExt, AsyncWriteExt};
-                while !stop.load(Relaxed) {
-                    if !on.load(Relaxed) {
-                        tokio::time::sleep(Duration::from_millis(2)).await;
-                        continue;
-                    }
-                    idle.store(false, Relaxed);
-                    let clients: Vec<_> = (0..200)
-                        .map(|_| {
-                            let (on, answered) = (on.clone(), answered.clone());
-                            tokio::spawn(async move {
-                                while on.load(Relaxed) {
-                                    let Ok(mut s) = tokio::net::TcpStream::connect(web).await else { continue };
-                                    let ask = b"GET /api/camera/1/frame.jpg HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n";
-                                    if s.write_all(ask).await.is_err() {
-                                        continue;
-                                    }
-                                    let mut out = Vec::new();
-                                    if let Ok(Ok(_)) = tokio::time::timeout(Duration::from_secs(20), s.read_to_end(&mut out)).await {
-                                        answered.fetch_add(out.starts_with(b"HTTP/1.1 200") as usize, Relaxed);
-                                    }
-                                }
-                            })
-                        })
-                        .collect();
-                    for c in clients {
-                        let _ = c.await;
-                    }
-                    idle.store(true, Relaxed);
-                }
-            })
-        })
-    };
+    // The load: 200 clients asking for the live frame over and over while `load.on` is set.
+    let load = common::load::LiveFrameLoad::start(web, 200);
+    let (on, idle, answered) = (load.on.clone(), load.idle.clone(), load.answered.clone());
 
     // One sample: three STATUS reads 10 ms apart (a PLC's polling), then a trigger-to-result cycle.
     async fn sample(ctx: &mut tokio_modbus::client::Context, reads: &mut Vec<f64>, cycles: &mut Vec<f64>) {
@@ -376,8 +329,8 @@ async fn two_hundred_parallel_live_frame_requests_do_not_slow_the_plc() {
         }
         answered_per_round.push(answered.load(Relaxed) - before);
     }
-    stop.store(true, Relaxed);
-    tokio::task::spawn_blocking(move || load.join().unwrap()).await.unwrap();
+    let thread = load.stop();
+    tokio::task::spawn_blocking(move || thread.join().unwrap()).await.unwrap();
 
     let p = |v: &mut Vec<f64>, q: f64| {
         v.sort_by(f64::total_cmp);

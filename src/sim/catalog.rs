@@ -9,7 +9,7 @@
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::models::{Feature, Look, Model, Shape};
+use super::models::{Look, Model, Shape, capsule, circle, feat, ring};
 use crate::truth::{CatalogChange, CatalogType};
 
 /// A catalogue: the models to enrol (T001, T002, ...), the never-enrolled ones (U01, ...), and
@@ -27,18 +27,6 @@ pub struct Catalogue {
 /// How deep a revision's change of outline is, mm.
 pub const CHANGE_MM: std::ops::Range<f64> = 3.5..6.5;
 
-fn circle(x: f64, y: f64, r: f64) -> Shape {
-    Shape::Circle { c: (x, y), r }
-}
-fn ring(x: f64, y: f64, r_in: f64, r_out: f64) -> Shape {
-    Shape::Ring { c: (x, y), r_in, r_out }
-}
-fn capsule(a: (f64, f64), b: (f64, f64), r: f64) -> Shape {
-    Shape::Capsule { a, b, r }
-}
-fn feat(shape: Shape, look: Look) -> Feature {
-    Feature { shape, look }
-}
 fn polar(r: f64, deg: f64) -> (f64, f64) {
     let a = deg.to_radians();
     (r * a.cos(), -r * a.sin())

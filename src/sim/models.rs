@@ -135,16 +135,16 @@ impl Shape {
     }
 }
 
-fn circle(x: f64, y: f64, r: f64) -> Shape {
+pub(crate) fn circle(x: f64, y: f64, r: f64) -> Shape {
     Shape::Circle { c: (x, y), r }
 }
-fn ring(x: f64, y: f64, r_in: f64, r_out: f64) -> Shape {
+pub(crate) fn ring(x: f64, y: f64, r_in: f64, r_out: f64) -> Shape {
     Shape::Ring { c: (x, y), r_in, r_out }
 }
-fn capsule(a: (f64, f64), b: (f64, f64), r: f64) -> Shape {
+pub(crate) fn capsule(a: (f64, f64), b: (f64, f64), r: f64) -> Shape {
     Shape::Capsule { a, b, r }
 }
-fn feat(shape: Shape, look: Look) -> Feature {
+pub(crate) fn feat(shape: Shape, look: Look) -> Feature {
     Feature { shape, look }
 }
 

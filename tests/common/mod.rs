@@ -5,6 +5,7 @@
 pub mod appliance;
 pub mod fanuc;
 pub mod http;
+pub mod load;
 pub mod webdriver;
 
 use lfi_bridge::eval::Observation;
