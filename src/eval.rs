@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use crate::truth::{Catalog, EstimatePart, TruthRecord, UNCOVERED};
+use crate::truth::{Catalog, EstimatePart, TruthPart, TruthRecord, UNCOVERED};
 use crate::vision::geometry::angle_diff_deg;
 
 /// Farthest a prediction may be from a true part's centroid to be its estimate, pixels.
@@ -214,9 +214,34 @@ impl Acc {
     }
 }
 
-/// Each true part's estimate (index into `o.parts`), and which estimates are some part's:
-/// closest pairs first, one-to-one, within [`MATCH_RADIUS`].
-fn pair_up(o: &Observation) -> (Vec<Option<usize>>, Vec<bool>) {
+/// One true part with its estimate and what every table asks of them, judged once.
+struct Judged<'a> {
+    truth: &'a TruthPart,
+    pred: Option<&'a EstimatePart>,
+    /// Its type is enrolled.
+    known: bool,
+    accepted: bool,
+    type_ok: bool,
+    /// Type and face right.
+    face_ok: bool,
+    angle_err: f64,
+    centroid_err: f64,
+}
+
+impl Judged<'_> {
+    /// Type and face right and the angle within [`POSE_TOLERANCE_DEG`].
+    fn pose_ok(&self) -> bool {
+        self.face_ok && self.angle_err <= POSE_TOLERANCE_DEG
+    }
+    /// Accepted, and unknown, wrong or turned beyond [`FALSE_ACCEPT_DEG`].
+    fn false_accept(&self) -> bool {
+        self.accepted && (!self.known || !self.face_ok || self.angle_err > FALSE_ACCEPT_DEG)
+    }
+}
+
+/// An observation's true parts judged against their estimates, paired closest first,
+/// one-to-one, within [`MATCH_RADIUS`]; and which estimates are some part's.
+fn judge<'a>(o: &'a Observation, enrolled: &[String]) -> (Vec<Judged<'a>>, Vec<bool>) {
     let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
     for (ti, t) in o.truth.parts.iter().enumerate() {
         for (pi, p) in o.parts.iter().enumerate() {
@@ -235,7 +260,27 @@ fn pair_up(o: &Observation) -> (Vec<Option<usize>>, Vec<bool>) {
             p_used[pi] = true;
         }
     }
-    (t_match, p_used)
+    let judged = o
+        .truth
+        .parts
+        .iter()
+        .zip(t_match)
+        .map(|(t, m)| {
+            let pred = m.map(|pi| &o.parts[pi]);
+            let type_ok = pred.is_some_and(|p| p.type_name.as_deref() == Some(t.type_name.as_str()));
+            Judged {
+                truth: t,
+                pred,
+                known: enrolled.iter().any(|n| n == &t.type_name),
+                accepted: pred.is_some_and(|p| p.accepted),
+                type_ok,
+                face_ok: type_ok && pred.is_some_and(|p| p.face.as_deref() == Some(t.face.as_str())),
+                angle_err: pred.map(|p| angle_diff_deg(p.angle_deg, t.angle_deg).abs()).unwrap_or(f64::INFINITY),
+                centroid_err: pred.map(|p| (p.x_px - t.x_px).hypot(p.y_px - t.y_px)).unwrap_or(f64::INFINITY),
+            }
+        })
+        .collect();
+    (judged, p_used)
 }
 
 /// Scores observations; `enrolled` are the type names in the knowledge base.
@@ -245,7 +290,8 @@ pub fn evaluate(obs: &[Observation], enrolled: &[String]) -> Report {
 
 /// [`evaluate`], and with a catalogue the story of its revision families.
 pub fn evaluate_catalogue(obs: &[Observation], enrolled: &[String], catalog: Option<&Catalog>) -> Report {
-    let mut report = evaluate_frames(obs, enrolled);
+    let judged: Vec<_> = obs.iter().map(|o| judge(o, enrolled)).collect();
+    let mut report = evaluate_frames(obs, &judged);
     let family_of = |name: &str| catalog.and_then(|c| c.types.iter().find(|t| t.name == name)).and_then(|t| t.family.clone());
     let mut taken: BTreeMap<(String, String), (usize, usize)> = BTreeMap::new();
     let mut members: Vec<FamilyMember> = catalog
@@ -269,36 +315,26 @@ pub fn evaluate_catalogue(obs: &[Observation], enrolled: &[String], catalog: Opt
         })
         .unwrap_or_default();
     members.sort_by(|a, b| (&a.family, &a.type_name).cmp(&(&b.family, &b.type_name)));
-    for o in obs {
-        let (t_match, _) = pair_up(o);
-        for (ti, t) in o.truth.parts.iter().enumerate() {
-            let pred = t_match[ti].map(|pi| &o.parts[pi]);
-            let known = enrolled.iter().any(|n| n == &t.type_name);
-            let accepted = pred.is_some_and(|p| p.accepted);
-            let named = pred.and_then(|p| p.type_name.clone()).filter(|n| *n != t.type_name);
-            if let Some(n) = &named {
-                let e = taken.entry((t.type_name.clone(), n.clone())).or_default();
-                if accepted { e.0 += 1 } else { e.1 += 1 }
-            }
-            let reason = || pred.map_or("not found".to_string(), |p| p.reason.clone());
-            if !known {
-                *report.unknown_by_reason.entry(if accepted { "accepted".to_string() } else { reason() }).or_default() += 1;
-            }
-            if let Some(m) = members.iter_mut().find(|m| m.type_name == t.type_name) {
-                m.parts += 1;
-                let sibling = named.as_deref().is_some_and(|n| family_of(n).as_deref() == Some(m.family.as_str()));
-                let pose_ok = pred.is_some_and(|p| {
-                    named.is_none()
-                        && p.face.as_deref() == Some(t.face.as_str())
-                        && angle_diff_deg(p.angle_deg, t.angle_deg).abs() <= POSE_TOLERANCE_DEG
-                });
-                match (accepted, sibling) {
-                    (true, true) => m.sibling_accepted += 1,
-                    (true, false) if known && pose_ok => m.picked += 1,
-                    (true, false) => *m.rejected_by_reason.entry("accepted wrong".into()).or_default() += 1,
-                    (false, true) => m.sibling_rejected += 1,
-                    (false, false) => *m.rejected_by_reason.entry(reason()).or_default() += 1,
-                }
+    for j in judged.iter().flat_map(|(parts, _)| parts) {
+        let t = j.truth;
+        let named = j.pred.and_then(|p| p.type_name.clone()).filter(|n| *n != t.type_name);
+        if let Some(n) = &named {
+            let e = taken.entry((t.type_name.clone(), n.clone())).or_default();
+            if j.accepted { e.0 += 1 } else { e.1 += 1 }
+        }
+        let reason = || j.pred.map_or("not found".to_string(), |p| p.reason.clone());
+        if !j.known {
+            *report.unknown_by_reason.entry(if j.accepted { "accepted".to_string() } else { reason() }).or_default() += 1;
+        }
+        if let Some(m) = members.iter_mut().find(|m| m.type_name == t.type_name) {
+            m.parts += 1;
+            let sibling = named.as_deref().is_some_and(|n| family_of(n).as_deref() == Some(m.family.as_str()));
+            match (j.accepted, sibling) {
+                (true, true) => m.sibling_accepted += 1,
+                (true, false) if j.known && j.pose_ok() => m.picked += 1,
+                (true, false) => *m.rejected_by_reason.entry("accepted wrong".into()).or_default() += 1,
+                (false, true) => m.sibling_rejected += 1,
+                (false, false) => *m.rejected_by_reason.entry(reason()).or_default() += 1,
             }
         }
     }
@@ -314,32 +350,25 @@ pub fn evaluate_catalogue(obs: &[Observation], enrolled: &[String], catalog: Opt
 }
 
 /// The per-frame tables and false accepts.
-fn evaluate_frames(obs: &[Observation], enrolled: &[String]) -> Report {
+fn evaluate_frames(obs: &[Observation], judged: &[(Vec<Judged<'_>>, Vec<bool>)]) -> Report {
     let mut overall = Acc::default();
     let mut by_cond: BTreeMap<String, Acc> = BTreeMap::new();
     let mut by_type: BTreeMap<String, Acc> = BTreeMap::new();
     let mut by_noise: BTreeMap<i64, Acc> = BTreeMap::new();
     let mut details = Vec::new();
 
-    for o in obs {
+    for (o, (parts, p_used)) in obs.iter().zip(judged) {
         let cond = o.truth.condition.clone();
         let noise_bucket = ((o.truth.noise_sigma / 10.0).round() * 10.0) as i64;
         for acc in [&mut overall, by_cond.entry(cond.clone()).or_default(), by_noise.entry(noise_bucket).or_default()] {
             acc.frames += 1;
             acc.latency.push(o.elapsed_ms);
         }
-        let (t_match, p_used) = pair_up(o);
-        for (ti, t) in o.truth.parts.iter().enumerate() {
-            let known = enrolled.iter().any(|n| n == &t.type_name);
-            let pred = t_match[ti].map(|pi| &o.parts[pi]);
-            let type_ok = pred.is_some_and(|p| p.type_name.as_deref() == Some(t.type_name.as_str()));
-            let face_ok = type_ok && pred.is_some_and(|p| p.face.as_deref() == Some(t.face.as_str()));
-            let aerr = pred.map(|p| angle_diff_deg(p.angle_deg, t.angle_deg).abs()).unwrap_or(f64::INFINITY);
-            let cerr = pred.map(|p| (p.x_px - t.x_px).hypot(p.y_px - t.y_px)).unwrap_or(f64::INFINITY);
-            let accepted = pred.is_some_and(|p| p.accepted);
-            let false_accept = accepted && (!known || !face_ok || aerr > FALSE_ACCEPT_DEG);
+        for j in parts {
+            let t = j.truth;
+            let (known, accepted, false_accept) = (j.known, j.accepted, j.false_accept());
             if false_accept {
-                let p = pred.expect("accepted implies matched");
+                let p = j.pred.expect("accepted implies matched");
                 details.push(format!(
                     "{}: accepted {} {} {:.2} deg at ({:.1}, {:.1}) on a {} {} {:.2} deg at ({:.1}, {:.1})",
                     o.truth.image,
@@ -372,9 +401,9 @@ fn evaluate_frames(obs: &[Observation], enrolled: &[String]) -> Report {
                     continue;
                 }
                 acc.parts += 1;
-                acc.type_ok += type_ok as usize;
-                acc.face_ok += face_ok as usize;
-                let pose_ok = face_ok && aerr <= POSE_TOLERANCE_DEG;
+                acc.type_ok += j.type_ok as usize;
+                acc.face_ok += j.face_ok as usize;
+                let pose_ok = j.pose_ok();
                 let uncovered = t.visible_fraction >= UNCOVERED;
                 acc.pose_ok += pose_ok as usize;
                 acc.accepted += accepted as usize;
@@ -382,9 +411,9 @@ fn evaluate_frames(obs: &[Observation], enrolled: &[String]) -> Report {
                 acc.uncovered += uncovered as usize;
                 acc.uncovered_picked += (uncovered && accepted && pose_ok) as usize;
                 acc.covered_accepts += (!uncovered && accepted) as usize;
-                if face_ok {
-                    acc.angle_err.push(aerr);
-                    acc.centroid_err.push(cerr);
+                if j.face_ok {
+                    acc.angle_err.push(j.angle_err);
+                    acc.centroid_err.push(j.centroid_err);
                 }
             }
         }

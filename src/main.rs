@@ -287,15 +287,7 @@ fn enroll(
     image: &Path,
 ) -> Result<ExitCode> {
     let mut kb = KnowledgeBase::load_or_new(kb_path)?;
-    let (img, notes) = imageio::read_gray(image)?;
-    for n in notes {
-        tracing::warn!(image = %image.display(), "{n}");
-    }
-    let (mut t, left_out) = Template::learn(img.view()?, type_name, id, face, origin, &Params::default())
-        .with_context(|| format!("cannot enroll {}", image.display()))?;
-    if let Some(l) = left_out {
-        tracing::warn!(image = %image.display(), "{l}");
-    }
+    let mut t = learn(image, type_name, id, face, origin, &Params::default())?;
     t.keep_out = keep_out;
     let summary = format!(
         "{} {} (id {}): {} outline points, {} line features, area {:.0} px^2, outline centroid ({:.2}, {:.2}), origin ({:.2}, {:.2})",
@@ -316,6 +308,21 @@ fn enroll(
     Ok(ExitCode::SUCCESS)
 }
 
+/// A template from an image file, the image's conversions and any material left out of the
+/// template logged (the one way both enrolment commands read a template).
+fn learn(image: &Path, type_name: &str, id: u16, face: Face, origin: Option<Pt>, params: &Params) -> Result<Template> {
+    let (img, notes) = imageio::read_gray(image).with_context(|| format!("cannot read {}", image.display()))?;
+    for n in notes {
+        tracing::warn!(image = %image.display(), "{n}");
+    }
+    let (t, left_out) =
+        Template::learn(img.view()?, type_name, id, face, origin, params).with_context(|| format!("cannot enroll {}", image.display()))?;
+    if let Some(l) = left_out {
+        tracing::warn!(image = %image.display(), "{l}");
+    }
+    Ok(t)
+}
+
 /// A folder of `TYPE_FACE` templates: every image compiled (on every core), then enrolled and
 /// the knowledge base written once; any image that fails fails the command and writes nothing,
 /// naming every such image, so that a catalogue is never half enrolled.
@@ -328,39 +335,21 @@ fn enroll_folder(kb_path: &Path, dir: &Path) -> Result<ExitCode> {
         tracing::warn!(file = %path.display(), "not enrolled: {why}");
     }
     let params = Params::default();
-    let compile = |f: &lfi_bridge::kb::FolderTemplate| -> Result<Template> {
-        let (img, notes) = imageio::read_gray(&f.path).with_context(|| format!("cannot read {}", f.path.display()))?;
-        for n in notes {
-            tracing::warn!(image = %f.path.display(), "{n}");
-        }
-        let (t, left_out) = Template::learn(img.view()?, &f.type_name, f.id, f.face, None, &params)
-            .with_context(|| format!("cannot enroll {}", f.path.display()))?;
-        if let Some(l) = left_out {
-            tracing::warn!(image = %f.path.display(), "{l}");
-        }
-        Ok(t)
-    };
     // Templates compile independently: one chunk of the list per core.
     let workers = std::thread::available_parallelism().map_or(1, |n| n.get()).min(plan.len());
-    let chunk = plan.len().div_ceil(workers);
-    let mut compiled: Vec<Option<Result<Template>>> = (0..plan.len()).map(|_| None).collect();
-    std::thread::scope(|s| {
-        for (slots, files) in compiled.chunks_mut(chunk).zip(plan.chunks(chunk)) {
-            let compile = &compile;
-            s.spawn(move || {
-                for (slot, f) in slots.iter_mut().zip(files) {
-                    *slot = Some(compile(f));
-                }
-            });
-        }
+    let compiled: Vec<Result<Template>> = std::thread::scope(|s| {
+        let chunks: Vec<_> = plan
+            .chunks(plan.len().div_ceil(workers))
+            .map(|files| s.spawn(|| files.iter().map(|f| learn(&f.path, &f.type_name, f.id, f.face, None, &params)).collect::<Vec<_>>()))
+            .collect();
+        chunks.into_iter().flat_map(|h| h.join().expect("a template worker panicked")).collect()
     });
     let mut failed = Vec::new();
     let mut templates = Vec::with_capacity(plan.len());
     for (f, r) in plan.iter().zip(compiled) {
         match r {
-            Some(Ok(t)) => templates.push((f, t)),
-            Some(Err(e)) => failed.push(format!("{e:#}")),
-            None => failed.push(format!("{}: not compiled (its worker thread stopped)", f.path.display())),
+            Ok(t) => templates.push((f, t)),
+            Err(e) => failed.push(format!("{e:#}")),
         }
     }
     if !failed.is_empty() {

@@ -10,6 +10,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::models::{Look, Model, Shape, capsule, circle, feat, ring};
+use super::render::Polygons;
 use crate::truth::{CatalogChange, CatalogType};
 
 /// A catalogue: the models to enrol (T001, T002, ...), the never-enrolled ones (U01, ...), and
@@ -144,45 +145,11 @@ fn fork(rng: &mut ChaCha8Rng, name: String) -> Model {
     }
 }
 
-/// A model's shapes as polygons, for many inside tests.
-struct Polygons {
-    material: Vec<Vec<Vec<(f64, f64)>>>,
-    holes: Vec<Vec<Vec<(f64, f64)>>>,
-}
-
-impl Polygons {
-    fn new(m: &Model) -> Self {
-        Self { material: m.material.iter().map(Shape::contours).collect(), holes: m.holes.iter().map(Shape::contours).collect() }
-    }
-}
-
-/// Whether (x, y) mm is material of `m` (its material less its holes).
-pub fn is_material(m: &Model, x: f64, y: f64) -> bool {
-    inside_polygons(&Polygons::new(m), x, y)
-}
-
-fn inside_polygons(m: &Polygons, x: f64, y: f64) -> bool {
-    let inside = |s: &Vec<Vec<(f64, f64)>>| {
-        let mut odd = false;
-        for c in s {
-            let n = c.len();
-            for i in 0..n {
-                let (a, b) = (c[i], c[(i + 1) % n]);
-                if (a.1 > y) != (b.1 > y) && x < a.0 + (y - a.1) / (b.1 - a.1) * (b.0 - a.0) {
-                    odd = !odd;
-                }
-            }
-        }
-        odd
-    };
-    m.material.iter().any(inside) && !m.holes.iter().any(inside)
-}
-
 /// How far from `c` along direction `deg` the outline lies (the farthest material point), mm.
 fn envelope(m: &Polygons, c: (f64, f64), deg: f64) -> f64 {
     let (ux, uy) = polar(1.0, deg);
-    let mut r = m.material.iter().flatten().flatten().map(|p| (p.0 - c.0).hypot(p.1 - c.1)).fold(0.0, f64::max) + 1.0;
-    while r > 0.0 && !inside_polygons(m, c.0 + r * ux, c.1 + r * uy) {
+    let mut r = m.reach(c) + 1.0;
+    while r > 0.0 && !m.contains(c.0 + r * ux, c.1 + r * uy) {
         r -= 0.05;
     }
     r
@@ -194,27 +161,25 @@ fn envelope(m: &Polygons, c: (f64, f64), deg: f64) -> f64 {
 fn revise(rng: &mut ChaCha8Rng, parent: &Model, name: String) -> (Model, CatalogChange) {
     let (_, cx, cy) = super::render::material_moments(parent);
     let polys = Polygons::new(parent);
-    let is_material = |_: &Model, x: f64, y: f64| inside_polygons(&polys, x, y);
-    let envelope = |_: &Model, c: (f64, f64), deg: f64| envelope(&polys, c, deg);
     let start = rng.random_range(0.0..360.0);
     let (deg, r) = (0..72)
         .map(|k| start + 5.0 * k as f64)
-        .map(|deg| (deg, envelope(parent, (cx, cy), deg)))
+        .map(|deg| (deg, envelope(&polys, (cx, cy), deg)))
         .find(|&(deg, r)| {
             // Solid material behind it (a notch must not break into a bore) and clear belt
             // around it (a boss must not reach another arm).
             let (ux, uy) = polar(1.0, deg);
-            let solid = (1..=16).all(|k| is_material(parent, cx + (r - 0.5 * k as f64) * ux, cy + (r - 0.5 * k as f64) * uy));
+            let solid = (1..=16).all(|k| polys.contains(cx + (r - 0.5 * k as f64) * ux, cy + (r - 0.5 * k as f64) * uy));
             let clear = [-45.0, 0.0, 45.0].iter().all(|d| {
                 let (vx, vy) = polar(1.0, deg + d);
-                (2..=9).all(|t| !is_material(parent, cx + r * ux + t as f64 * vx, cy + r * uy + t as f64 * vy))
+                (2..=9).all(|t| !polys.contains(cx + r * ux + t as f64 * vx, cy + r * uy + t as f64 * vy))
             });
             r > 15.0
                 && solid
                 && clear
-                && [-6.0, -3.0, 3.0, 6.0].iter().all(|d| (envelope(parent, (cx, cy), deg + d) - r).abs() < 1.2 + 0.1 * d.abs())
+                && [-6.0, -3.0, 3.0, 6.0].iter().all(|d| (envelope(&polys, (cx, cy), deg + d) - r).abs() < 1.2 + 0.1 * d.abs())
         })
-        .unwrap_or((start, envelope(parent, (cx, cy), start)));
+        .unwrap_or((start, envelope(&polys, (cx, cy), start)));
     let depth = rng.random_range(CHANGE_MM);
     let (ux, uy) = polar(1.0, deg);
     let at = (cx + r * ux, cy + r * uy);

@@ -124,7 +124,7 @@ impl Prepared {
 
 /// x-intervals where a horizontal line at `y` is inside a shape given as its contours
 /// (`Shape::contours`, even-odd).
-fn spans(contours: &[Vec<(f64, f64)>], y: f64) -> Vec<(f64, f64)> {
+fn spans(contours: &[Vec<(f64, f64)>], y: f64) -> Spans {
     let mut xs = Vec::new();
     for c in contours {
         let n = c.len();
@@ -140,7 +140,7 @@ fn spans(contours: &[Vec<(f64, f64)>], y: f64) -> Vec<(f64, f64)> {
 }
 
 /// Union of interval lists, sorted and merged.
-fn union(mut v: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
+fn union(mut v: Spans) -> Spans {
     v.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut out: Vec<(f64, f64)> = Vec::with_capacity(v.len());
     for (a, b) in v {
@@ -152,6 +152,40 @@ fn union(mut v: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
     out
 }
 
+/// x-intervals of a horizontal line, sorted.
+type Spans = Vec<(f64, f64)>;
+
+/// A model's shapes as polygons (`Shape::contours`), made once for many scanline questions.
+pub struct Polygons {
+    material: Vec<Vec<Vec<(f64, f64)>>>,
+    holes: Vec<Vec<Vec<(f64, f64)>>>,
+}
+
+impl Polygons {
+    /// The polygons of `model`'s material and holes.
+    pub fn new(model: &Model) -> Self {
+        Self { material: model.material.iter().map(Shape::contours).collect(), holes: model.holes.iter().map(Shape::contours).collect() }
+    }
+
+    /// The line at `y`: the union of the material's spans and the union of the holes'.
+    fn spans(&self, y: f64) -> (Spans, Spans) {
+        let line = |shapes: &[Vec<Vec<(f64, f64)>>]| union(shapes.iter().flat_map(|c| spans(c, y)).collect());
+        (line(&self.material), line(&self.holes))
+    }
+
+    /// Whether (x, y) mm is material: inside a material shape and in no hole.
+    pub fn contains(&self, x: f64, y: f64) -> bool {
+        let (material, holes) = self.spans(y);
+        let within = |v: &[(f64, f64)]| v.iter().any(|&(a, b)| a <= x && x < b);
+        within(&material) && !within(&holes)
+    }
+
+    /// The largest distance of a material polygon's vertex from `c`, mm.
+    pub fn reach(&self, c: (f64, f64)) -> f64 {
+        self.material.iter().flatten().flatten().map(|p| (p.0 - c.0).hypot(p.1 - c.1)).fold(0.0, f64::max)
+    }
+}
+
 /// Area and centroid (mm) of a model's material (union of `material` minus union of `holes`),
 /// integrated exactly along scanlines 0.01 mm apart: independent of any rasteriser's edge rule.
 pub fn material_moments(model: &Model) -> (f64, f64, f64) {
@@ -159,13 +193,11 @@ pub fn material_moments(model: &Model) -> (f64, f64, f64) {
     let (y0, y1) = pts.iter().fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.1), a.1.max(p.1)));
     let h = 0.01;
     // Each shape's polygons once, not once per scanline.
-    let material: Vec<Vec<Vec<(f64, f64)>>> = model.material.iter().map(Shape::contours).collect();
-    let hole_contours: Vec<Vec<Vec<(f64, f64)>>> = model.holes.iter().map(Shape::contours).collect();
+    let polygons = Polygons::new(model);
     let (mut area, mut mx, mut my) = (0.0, 0.0, 0.0);
     let mut y = y0 + h / 2.0;
     while y < y1 {
-        let mat = union(material.iter().flat_map(|c| spans(c, y)).collect());
-        let holes = union(hole_contours.iter().flat_map(|c| spans(c, y)).collect());
+        let (mat, holes) = polygons.spans(y);
         for &(a, b) in &mat {
             // Subtract the holes from [a, b].
             let mut cur = a;

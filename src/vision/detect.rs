@@ -116,6 +116,17 @@ pub struct DetectParams {
 /// image's short side are a speck at the border, not a part.
 const BORDER_SPECK: f64 = 0.25;
 
+/// The longest side of a chain's bounding box below which a chain at the border is a speck.
+fn speck_limit(edges: &Mat) -> i32 {
+    (BORDER_SPECK * edges.cols().min(edges.rows()) as f64) as i32
+}
+
+/// How near the image's edge a chain makes its closed region touch the border: the blob's
+/// border test allows 1 px and the closing's dilation adds its radius.
+fn border_reach(closing: i32) -> i32 {
+    1 + closing / 2
+}
+
 /// The 8-connected chains of `edges` (8-bit, 0 or 255) that come within `reach` pixels of the
 /// image's edge (where their closed region would touch the border): each chain's label in
 /// `labels` and the longer side of its bounding box.
@@ -135,18 +146,18 @@ fn chains_at_border(edges: &Mat, reach: i32, labels: &mut Mat) -> Result<Vec<(i3
     Ok(out)
 }
 
-/// Clears from `edges` every chain at the border (see [`chains_at_border`]) that fits in a box
-/// of [`BORDER_SPECK`] of the image's short side.
-fn drop_border_specks(edges: &mut Mat, reach: i32) -> Result<(), FrameError> {
-    let limit = (BORDER_SPECK * edges.cols().min(edges.rows()) as f64) as i32;
+/// Clears from `edges` every chain at the border (within the reach of a `closing`, see
+/// [`chains_at_border`]) that fits in a box of [`BORDER_SPECK`] of the image's short side.
+fn drop_border_specks(edges: &mut Mat, closing: i32) -> Result<(), FrameError> {
+    let limit = speck_limit(edges);
     let mut labels = Mat::default();
-    let specks: Vec<i32> = chains_at_border(edges, reach, &mut labels)?.into_iter().filter(|c| c.1 < limit).map(|c| c.0).collect();
+    let specks: Vec<i32> =
+        chains_at_border(edges, border_reach(closing), &mut labels)?.into_iter().filter(|c| c.1 < limit).map(|c| c.0).collect();
     if specks.is_empty() {
         return Ok(());
     }
-    let labels = labels.data_typed::<i32>()?.to_vec();
-    for (e, l) in edges.data_bytes_mut()?.iter_mut().zip(labels) {
-        if specks.contains(&l) {
+    for (e, l) in edges.data_bytes_mut()?.iter_mut().zip(labels.data_typed::<i32>()?) {
+        if specks.contains(l) {
             *e = 0;
         }
     }
@@ -158,8 +169,8 @@ fn drop_border_specks(edges: &mut Mat, reach: i32) -> Result<(), FrameError> {
 /// touch the border at all: the cut outline is an open chain that encloses nothing, and the
 /// largest region found is then something inside the part.
 pub fn cut_by_border(coarse: &Coarse, closing: i32) -> Result<bool, FrameError> {
-    let limit = (BORDER_SPECK * coarse.edges.cols().min(coarse.edges.rows()) as f64) as i32;
-    Ok(chains_at_border(&coarse.edges, 1 + closing / 2, &mut Mat::default())?.iter().any(|c| c.1 >= limit))
+    let limit = speck_limit(&coarse.edges);
+    Ok(chains_at_border(&coarse.edges, border_reach(closing), &mut Mat::default())?.iter().any(|c| c.1 >= limit))
 }
 
 /// The factor actually used: the requested one, reduced for small frames so that the decimated
@@ -331,8 +342,7 @@ pub fn detect(frame: GrayView<'_>, p: &DetectParams) -> Result<Coarse, FrameErro
     let mut edges = Mat::default();
     imgproc::canny(&blurred, &mut edges, p.canny_low_ratio * auto, auto, 3, false)?;
     if p.drop_border_specks {
-        // The blob's border test allows 1 px; the closing's dilation adds its radius.
-        drop_border_specks(&mut edges, 1 + p.closing / 2)?;
+        drop_border_specks(&mut edges, p.closing)?;
     }
     let kernel = imgproc::get_structuring_element(imgproc::MORPH_ELLIPSE, Size::new(p.closing, p.closing), Point::new(-1, -1))?;
     let mut dilated = Mat::default();
