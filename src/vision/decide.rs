@@ -1,7 +1,13 @@
-//! The estimator's decision on one part, typed: the verdict and the evidence behind it.
+//! The accept/reject ladder, written once: what the estimator measured about a part in, the
+//! decision out.
 //!
-//! The estimator decides; this module holds what it decided and renders it, once, for the log
-//! and the operator's "why" (`detail`). Tests assert on the fields, not on the text.
+//! The estimator's two paths (a separate part; each part the region search found) only measure:
+//! they fill one [`Measured`] record per part and hand it here. [`decide`] tests it against the
+//! limits in one order, the same for either path; a test whose measure the path does not take
+//! (a region's support on a separate part, the outline's extra material on a part in a region)
+//! is skipped. [`failed`] walks the same ladder over what is measured so far, so that a path can
+//! stop measuring once a part is rejected. The log's text, the operator's "why" panel
+//! ([`Decision::measures`]) and the PLC's REASON all read the one [`Decision`] it returns.
 
 use std::fmt;
 
@@ -125,6 +131,17 @@ impl Verdict {
             Verdict::NoClearance { .. } => Reason::NoClearance,
         }
     }
+
+    /// Whether the robot may pick the part.
+    pub fn accepts(&self) -> bool {
+        matches!(self, Verdict::Accept)
+    }
+
+    /// Whether the part keeps the type its best fit named: not when no template fits, or only
+    /// at a size no part of that type has.
+    pub fn names_type(&self) -> bool {
+        !matches!(self, Verdict::NoFit { .. } | Verdict::Scale { .. } | Verdict::Unexplained { .. })
+    }
 }
 
 impl fmt::Display for Verdict {
@@ -164,19 +181,37 @@ impl fmt::Display for Verdict {
     }
 }
 
-/// The closest other type or face.
+/// The closest other type or face, measured against the best at a tight tolerance.
+///
+/// The tight tolerance comes from the best fit's own residual (see
+/// [`super::register::tight_tolerance`]): noise widens the tolerance for naming a type, but must
+/// not blur a small face difference (an eyelet on one side) into a tie.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rival {
     /// The rival template.
     pub name: Named,
-    /// Its fit (support, in a region) at the tight tolerance.
+    /// Its fit at the tight tolerance, measured as its path measures fits: on a separate part
+    /// the worse of inliers and coverage; in a region, whose outline also runs around other
+    /// parts, the coverage of the template's outline.
     pub fit: f64,
-    /// The best template's at the same tolerance, and that tolerance (px).
+    /// The best template's at the same tolerance.
     pub best: f64,
     /// The tight tolerance both were measured at, px.
     pub tolerance: f64,
+    /// In a region: its support and the best's (the image's evidence for each, at the generous
+    /// tolerance), which must tie too.
+    pub support: Option<(f64, f64)>,
     /// Its line features' confidence at its pose.
     pub confidence: f64,
+}
+
+impl Rival {
+    /// Whether its outline ties with the best's: every fit measured of it within the ambiguity
+    /// margin of the best's. The one rival test of both paths.
+    pub fn ties(&self, l: &Limits) -> bool {
+        let within = |rival: f64, best: f64| rival >= best - l.ambiguity_margin;
+        within(self.fit, self.best) && self.support.is_none_or(|(rival, best)| within(rival, best))
+    }
 }
 
 /// How the part's outline fits its best template on the separate-part path.
@@ -202,6 +237,9 @@ pub struct OutlineFit {
     pub corr_rms: f64,
     /// Part size over template size.
     pub scale: f64,
+    /// Area of the template closest by correlation, px^2: a region much larger than the part it
+    /// resembles holds several.
+    pub nominal: f64,
     /// The next templates: registered (fit) or by correlation distance only.
     pub next: Vec<(Named, NextFit)>,
 }
@@ -220,11 +258,9 @@ pub enum NextFit {
 pub struct RegionFit {
     /// The best template.
     pub best: Named,
-    /// Length fraction of the template's outline the image explains, and the least accepted.
+    /// Length fraction of the template's outline the image explains.
     pub support: f64,
-    /// The least support accepted.
-    pub need: f64,
-    /// Fraction of it on the region's outline, and the registration's RMS (px).
+    /// Fraction of it on the region's outline (the rest from edges in the image).
     pub coverage: f64,
     /// RMS distance of the registration, px.
     pub rms: f64,
@@ -245,7 +281,56 @@ pub struct Lines {
     pub lambda: f64,
 }
 
-/// The limits a decision was held to: the estimator's parameters when it decided.
+/// The outline's bounds in the frame and whether they come near its edge.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bounds {
+    /// Top-left, frame pixels.
+    pub lo: Pt,
+    /// Bottom-right, frame pixels.
+    pub hi: Pt,
+    /// Within 3 px of the frame's edge: the part may be cut off there.
+    pub at_border: bool,
+}
+
+/// How a part found in a region lies among the others found there.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub enum Order {
+    /// Nothing found lies on it (or it is the only part).
+    #[default]
+    Free,
+    /// This part lies on it.
+    Under(Named),
+    /// It overlaps another and the image does not tell which lies on top.
+    Unclear,
+}
+
+/// Everything the estimator measured about one part, as far as it got. A measure a path does not
+/// take, or had no need to take (the part was already rejected), is `None` and not tested.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Measured {
+    /// The outline's bounds.
+    pub border: Option<Bounds>,
+    /// The region's area, px^2 (a separate part: the region is the part).
+    pub area: Option<f64>,
+    /// Part-sized material, px^2, beside the parts found in a region, that no template explains.
+    pub unexplained: Option<f64>,
+    /// A separate part: how its outline fits the best template.
+    pub outline: Option<OutlineFit>,
+    /// A part found in a region: how the image supports the best template.
+    pub region: Option<RegionFit>,
+    /// A part found in a region: whether another lies on it.
+    pub order: Order,
+    /// The closest other type or face, when one was measured.
+    pub rival: Option<Rival>,
+    /// The line features' agreement at the best pose.
+    pub lines: Option<Lines>,
+    /// Edge pixels of other material inside the gripper's keep-out footprint (three or more:
+    /// a speck of noise is not an obstacle); `Some(0)` when the footprint is clear or the part
+    /// has none.
+    pub blocked: Option<usize>,
+}
+
+/// The limits a decision is held to: the estimator's parameters when it decided.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Limits {
     /// Least outline fit that names a type.
@@ -262,6 +347,114 @@ pub struct Limits {
     pub confidence_margin: f64,
     /// Least confidence accepted.
     pub accept_threshold: f64,
+    /// A region larger than this times the template it resembles holds several parts.
+    pub touching_area_ratio: f64,
+    /// The largest region one part can make (the largest template at the largest scale, times
+    /// `touching_area_ratio`), px^2.
+    pub max_area: f64,
+}
+
+/// The ladder's tests, in the order [`ladder`] makes them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Test {
+    Border,
+    Size,
+    Material,
+    Fit,
+    Scale,
+    Foreign,
+    Order,
+    Support,
+    Rival,
+    Confidence,
+    Clearance,
+}
+
+/// The ladder: each test whose measure is there, in one order; `seen` is told of each test made
+/// and whether it passed. Returns the first failure's verdict.
+fn ladder(m: &Measured, l: &Limits, mut seen: impl FnMut(Test, bool)) -> Option<Verdict> {
+    let mut test = |t: Test, pass: bool| {
+        seen(t, pass);
+        !pass
+    };
+    if let Some(b) = m.border
+        && test(Test::Border, !b.at_border)
+    {
+        return Some(Verdict::AtBorder { lo: b.lo, hi: b.hi });
+    }
+    if let Some(area) = m.area
+        && test(Test::Size, area <= l.max_area)
+    {
+        return Some(Verdict::TooLarge { area });
+    }
+    if let Some(area) = m.unexplained
+        && test(Test::Material, false)
+    {
+        return Some(Verdict::Unexplained { area });
+    }
+    if let Some(o) = &m.outline
+        && test(Test::Fit, o.fit >= l.min_fit)
+    {
+        let merged = m.area.is_some_and(|a| a > l.touching_area_ratio * o.nominal);
+        return Some(Verdict::NoFit { need: l.min_fit, merged });
+    }
+    if let Some(scale) = m.outline.as_ref().map(|o| o.scale).or(m.region.as_ref().map(|r| r.scale))
+        && test(Test::Scale, scale >= l.scale_range.0 && scale <= l.scale_range.1)
+    {
+        return Some(Verdict::Scale { scale, range: l.scale_range });
+    }
+    if let Some(o) = &m.outline
+        && test(Test::Foreign, o.extra <= l.max_foreign && o.missing <= l.max_foreign)
+    {
+        return Some(Verdict::Foreign { extra: o.extra, missing: o.missing, limit: l.max_foreign });
+    }
+    if m.region.is_some() && test(Test::Order, m.order == Order::Free) {
+        return Some(match &m.order {
+            Order::Under(by) => Verdict::Covered { by: by.clone() },
+            _ => Verdict::OrderUnclear,
+        });
+    }
+    if let Some(r) = &m.region
+        && test(Test::Support, r.support >= l.min_support)
+    {
+        return Some(Verdict::Unseen { support: r.support, need: l.min_support });
+    }
+    if let (Some(r), Some(lines)) = (&m.rival, &m.lines)
+        && test(Test::Rival, !r.ties(l) || lines.confidence - r.confidence >= l.confidence_margin)
+    {
+        return Some(Verdict::Rival { rival: r.clone() });
+    }
+    if let Some(lines) = &m.lines
+        && test(Test::Confidence, lines.confidence >= l.accept_threshold)
+    {
+        return Some(Verdict::LowConfidence { confidence: lines.confidence, threshold: l.accept_threshold });
+    }
+    if let Some(n) = m.blocked
+        && test(Test::Clearance, n == 0)
+    {
+        return Some(Verdict::NoClearance { edge_px: n });
+    }
+    None
+}
+
+/// The decision on a part: the first test of the ladder it fails, else acceptance, which needs a
+/// fit that names a type and the line features' confidence. A record missing either (a path
+/// that stopped short) is never accepted: no template is said to fit.
+pub fn decide(m: Measured, l: Limits) -> Decision {
+    let verdict = ladder(&m, &l, |_, _| {}).unwrap_or_else(|| {
+        if (m.outline.is_some() || m.region.is_some()) && m.lines.is_some() {
+            Verdict::Accept
+        } else {
+            Verdict::NoFit { need: l.min_fit, merged: false }
+        }
+    });
+    Decision { verdict, measured: m, limits: l }
+}
+
+/// The decision when what is measured so far already fails a test, so that the estimator need
+/// not measure the rest; None while every test so far passes.
+pub fn failed(m: &Measured, l: &Limits) -> Option<Decision> {
+    ladder(m, l, |_, _| {}).map(|verdict| Decision { verdict, measured: m.clone(), limits: *l })
 }
 
 /// One measure behind a decision and the limit it was held to, as the operator's "why" panel
@@ -284,162 +477,141 @@ impl Measure {
     }
 }
 
-/// Everything measured about a part, as far as the estimator got.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct Evidence {
-    /// The separate-part path's outline fit.
-    pub outline: Option<OutlineFit>,
-    /// The several-parts path's fit.
-    pub region: Option<RegionFit>,
-    /// The line features' agreement, once a type and pose were found.
-    pub lines: Option<Lines>,
-    /// The closest other type or face, when one came near.
-    pub rival: Option<Rival>,
-    /// The limits in force, once a template was compared at all.
-    pub limits: Option<Limits>,
-}
-
-/// The verdict on a part and the evidence behind it.
+/// The verdict on a part and what it was concluded from.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Decision {
     /// What was concluded.
     pub verdict: Verdict,
     /// What it was concluded from.
-    pub evidence: Evidence,
+    pub measured: Measured,
+    /// The limits in force.
+    pub limits: Limits,
 }
 
 impl Decision {
-    /// A decision from its parts.
-    pub fn new(verdict: Verdict, evidence: Evidence) -> Self {
-        Self { verdict, evidence }
-    }
-
-    /// Every measure the decision used, each with its limit and whether it passed, in the order
-    /// the estimator applies them; the verdict's own finding where no measure shows it.
+    /// Every test the ladder made, in its order, each with its measure, its limit and whether it
+    /// passed (the last one made is the failing one of a reject), with the numbers behind them
+    /// shown for information.
     pub fn measures(&self) -> Vec<Measure> {
-        let e = &self.evidence;
-        let mut m = Vec::new();
+        let (m, l) = (&self.measured, &self.limits);
+        let mut out = Vec::new();
         let f3 = |v: f64| format!("{v:.3}");
-        match &self.verdict {
-            Verdict::AtBorder { lo, hi } => m.push(Measure::new(
-                "outline clear of the frame's edge",
-                format!("x {:.0}..{:.0}, y {:.0}..{:.0} px", lo.x, hi.x, lo.y, hi.y),
-                "3 px from every edge".into(),
-                Some(false),
-            )),
-            Verdict::TooLarge { area } => {
-                m.push(Measure::new("region area", format!("{area:.0} px^2"), "at most an enrolled part's".into(), Some(false)))
+        ladder(m, l, |t, pass| {
+            let pass = Some(pass);
+            match t {
+                Test::Border => {
+                    let b = m.border.expect("tested");
+                    out.push(Measure::new(
+                        "outline clear of the frame's edge",
+                        format!("x {:.0}..{:.0}, y {:.0}..{:.0} px", b.lo.x, b.hi.x, b.lo.y, b.hi.y),
+                        "3 px from every edge".into(),
+                        pass,
+                    ))
+                }
+                Test::Size => out.push(Measure::new(
+                    "region area",
+                    format!("{:.0} px^2", m.area.unwrap_or(0.0)),
+                    format!("<= {:.0} px^2 (the largest part, one at a time)", l.max_area),
+                    pass,
+                )),
+                Test::Material => out.push(Measure::new(
+                    "material explained",
+                    format!("{:.0} px^2 left over", m.unexplained.unwrap_or(0.0)),
+                    "every part-sized piece by a part".into(),
+                    pass,
+                )),
+                Test::Fit => {
+                    let o = m.outline.as_ref().expect("tested");
+                    out.push(Measure::new(format!("outline fit ({})", o.best), f3(o.fit), format!(">= {:.2}", l.min_fit), pass));
+                }
+                Test::Scale => {
+                    let scale = m.outline.as_ref().map(|o| o.scale).or(m.region.as_ref().map(|r| r.scale)).unwrap_or(0.0);
+                    out.push(Measure::new("scale", f3(scale), format!("{:.2}..{:.2}", l.scale_range.0, l.scale_range.1), pass))
+                }
+                Test::Foreign => {
+                    let o = m.outline.as_ref().expect("tested");
+                    let limit = format!("each <= {:.3}", l.max_foreign);
+                    out.push(Measure::new(
+                        "extra outline (other material), missing outline (hidden)",
+                        format!("{:.3}, {:.3}", o.extra, o.missing),
+                        limit,
+                        pass,
+                    ));
+                    out.push(Measure::new("outline rms", format!("{:.2} px", o.rms), format!("tolerance {:.2} px", o.tolerance), None));
+                }
+                Test::Order => out.push(Measure::new(
+                    "lies on top",
+                    match &m.order {
+                        Order::Free => "nothing found on it".into(),
+                        Order::Under(by) => format!("no: {by} lies on it"),
+                        Order::Unclear => "the image does not tell".into(),
+                    },
+                    "nothing on it".into(),
+                    pass,
+                )),
+                Test::Support => {
+                    let r = m.region.as_ref().expect("tested");
+                    out.push(Measure::new(
+                        format!("outline explained ({})", r.best),
+                        f3(r.support),
+                        format!(">= {:.2}", l.min_support),
+                        pass,
+                    ));
+                    out.push(Measure::new("on the region's outline", f3(r.coverage), "the rest from edges in the image".into(), None));
+                }
+                Test::Rival => {
+                    let r = m.rival.as_ref().expect("tested");
+                    let lines = m.lines.as_ref().expect("tested");
+                    let support = r.support.map(|(s, b)| format!(", support {s:.3} vs {b:.3}")).unwrap_or_default();
+                    let ties = r.ties(l);
+                    out.push(Measure::new(
+                        format!("rival {}: fit", r.name),
+                        format!("{:.3} vs {:.3} at {:.2} px{support}", r.fit, r.best, r.tolerance),
+                        format!("within {:.2}: line features decide", l.ambiguity_margin),
+                        if ties { None } else { pass },
+                    ));
+                    if ties {
+                        out.push(Measure::new(
+                            format!("confidence lead over {}", r.name),
+                            f3(lines.confidence - r.confidence),
+                            format!(">= {:.2}", l.confidence_margin),
+                            pass,
+                        ));
+                    }
+                }
+                Test::Confidence => {
+                    let c = m.lines.as_ref().expect("tested").confidence;
+                    out.push(Measure::new("confidence (line features)", f3(c), format!(">= {:.2}", l.accept_threshold), pass))
+                }
+                Test::Clearance => out.push(Measure::new(
+                    "keep-out footprint clear",
+                    format!("{} edge px of other material", m.blocked.unwrap_or(0)),
+                    "fewer than 3".into(),
+                    pass,
+                )),
             }
-            _ => {}
-        }
-        if let (Some(o), Some(l)) = (&e.outline, &e.limits) {
-            m.push(Measure::new(format!("outline fit ({})", o.best), f3(o.fit), format!(">= {:.2}", l.min_fit), Some(o.fit >= l.min_fit)));
-            m.push(Measure::new(
-                "scale",
-                f3(o.scale),
-                format!("{:.2}..{:.2}", l.scale_range.0, l.scale_range.1),
-                Some(in_range(o.scale, l)),
-            ));
-            m.push(Measure::new(
-                "extra outline (other material)",
-                f3(o.extra),
-                format!("<= {:.3}", l.max_foreign),
-                Some(o.extra <= l.max_foreign),
-            ));
-            m.push(Measure::new(
-                "missing outline (hidden)",
-                f3(o.missing),
-                format!("<= {:.3}", l.max_foreign),
-                Some(o.missing <= l.max_foreign),
-            ));
-            m.push(Measure::new("outline rms", format!("{:.2} px", o.rms), format!("tolerance {:.2} px", o.tolerance), None));
-        }
-        if let (Some(r), Some(l)) = (&e.region, &e.limits) {
-            m.push(Measure::new(
-                format!("outline explained ({})", r.best),
-                f3(r.support),
-                format!(">= {:.2}", r.need),
-                Some(r.support >= r.need),
-            ));
-            m.push(Measure::new(
-                "scale",
-                f3(r.scale),
-                format!("{:.2}..{:.2}", l.scale_range.0, l.scale_range.1),
-                Some(in_range(r.scale, l)),
-            ));
-            m.push(Measure::new("on the region's outline", f3(r.coverage), "the rest from edges in the image".into(), None));
-        }
-        match &self.verdict {
-            Verdict::Covered { by } => {
-                m.push(Measure::new("lies on top", format!("no: {by} lies on it"), "nothing on it".into(), Some(false)))
-            }
-            Verdict::OrderUnclear => {
-                m.push(Measure::new("lies on top", "the image does not tell".into(), "nothing on it".into(), Some(false)))
-            }
-            Verdict::Unexplained { area } => m.push(Measure::new(
-                "material explained",
-                format!("{area:.0} px^2 left over"),
-                "every part-sized piece by a part".into(),
-                Some(false),
-            )),
-            _ => {}
-        }
-        if let (Some(r), Some(lines), Some(l)) = (&e.rival, &e.lines, &e.limits) {
-            m.push(Measure::new(
-                format!("rival {}: fit", r.name),
-                format!("{:.3} vs {:.3} at {:.2} px", r.fit, r.best, r.tolerance),
-                format!("within {:.2}: line features decide", l.ambiguity_margin),
-                None,
-            ));
-            let lead = lines.confidence - r.confidence;
-            m.push(Measure::new(
-                format!("confidence lead over {}", r.name),
-                f3(lead),
-                format!(">= {:.2}", l.confidence_margin),
-                Some(lead >= l.confidence_margin),
-            ));
-        }
-        if let (Some(lines), Some(l)) = (&e.lines, &e.limits) {
-            m.push(Measure::new(
-                "confidence (line features)",
-                f3(lines.confidence),
-                format!(">= {:.2}", l.accept_threshold),
-                Some(lines.confidence >= l.accept_threshold),
-            ));
-        }
-        if let Verdict::NoClearance { edge_px } = &self.verdict {
-            m.push(Measure::new(
-                "keep-out footprint clear",
-                format!("{edge_px} edge px of other material"),
-                "fewer than 3".into(),
-                Some(false),
-            ));
-        }
-        m
+        });
+        out
     }
 
     /// The runner-up: the next template on the separate-part path, or the rival in a region.
     pub fn runner_up(&self) -> Option<String> {
-        let e = &self.evidence;
-        if let Some((n, fit)) = e.outline.as_ref().and_then(|o| o.next.first()) {
+        let m = &self.measured;
+        if let Some((n, fit)) = m.outline.as_ref().and_then(|o| o.next.first()) {
             return Some(match fit {
                 NextFit::Fit(v) => format!("{n}: fit {v:.3}"),
                 NextFit::CorrRms(v) => format!("{n}: correlation distance {v:.4} (not registered)"),
             });
         }
-        e.rival.as_ref().map(|r| format!("{}: fit {:.3}, confidence {:.3}", r.name, r.fit, r.confidence))
+        m.rival.as_ref().map(|r| format!("{}: fit {:.3}, confidence {:.3}", r.name, r.fit, r.confidence))
     }
-}
-
-fn in_range(scale: f64, l: &Limits) -> bool {
-    scale >= l.scale_range.0 && scale <= l.scale_range.1
 }
 
 impl fmt::Display for Decision {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let e = &self.evidence;
+        let m = &self.measured;
         write!(f, "{}", self.verdict)?;
-        if let Some(o) = &e.outline {
+        if let Some(o) = &m.outline {
             write!(
                 f,
                 "; best {}: fit {:.3} (inliers {:.3}, coverage {:.3}, extra {:.3}, missing {:.3}, rms {:.2} px, tol {:.2} px), corr rms {:.4}, scale {:.3}",
@@ -455,126 +627,26 @@ impl fmt::Display for Decision {
                 .collect();
             write!(f, "; next: {}", if next.is_empty() { "none".to_string() } else { next.join(", ") })?;
         }
-        if let Some(r) = &e.region {
+        if let Some(r) = &m.region {
             write!(
                 f,
                 "; found in a region of several parts: {} outline explained {:.3} (need {:.2}), on the region's outline {:.3}, rms {:.2} px, scale {:.3}",
-                r.best, r.support, r.need, r.coverage, r.rms, r.scale
+                r.best, r.support, self.limits.min_support, r.coverage, r.rms, r.scale
             )?;
         }
-        if let Some(l) = &e.lines {
+        if let Some(l) = &m.lines {
             write!(f, "; confidence {:.3} (noise {:.1}, contrast {:.0}, lambda {:.1})", l.confidence, l.noise, l.contrast, l.lambda)?;
         }
-        if let Some(r) = &e.rival {
-            write!(f, "; rival {} fit {:.3} vs {:.3} at {:.2} px, confidence {:.3}", r.name, r.fit, r.best, r.tolerance, r.confidence)?;
+        if let Some(r) = &m.rival {
+            write!(f, "; rival {} fit {:.3} vs {:.3} at {:.2} px", r.name, r.fit, r.best, r.tolerance)?;
+            if let Some((s, b)) = r.support {
+                write!(f, ", support {s:.3} vs {b:.3}")?;
+            }
+            write!(f, ", confidence {:.3}", r.confidence)?;
         }
         Ok(())
     }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn named() -> Named {
-        Named { type_name: "bracket".into(), face: Face::Up }
-    }
-
-    fn limits() -> Limits {
-        Limits {
-            min_fit: 0.75,
-            max_foreign: 0.06,
-            min_support: 0.93,
-            scale_range: (0.85, 1.18),
-            ambiguity_margin: 0.1,
-            confidence_margin: 0.15,
-            accept_threshold: 0.5,
-        }
-    }
-
-    /// The why panel's measures: each with its limit and whether it passed, the failing one
-    /// the verdict's; the runner-up named.
-    #[test]
-    fn measures_say_which_limit_a_part_failed() {
-        let outline = OutlineFit {
-            best: named(),
-            fit: 0.97,
-            inliers: 0.98,
-            coverage: 0.97,
-            extra: 0.01,
-            missing: 0.02,
-            rms: 0.4,
-            tolerance: 3.0,
-            corr_rms: 0.01,
-            scale: 1.0,
-            next: vec![(Named { type_name: "bracket".into(), face: Face::Down }, NextFit::Fit(0.81))],
-        };
-        let lines = Lines { confidence: 0.42, noise: 2.0, contrast: 100.0, lambda: 24.9 };
-        let d = Decision::new(
-            Verdict::LowConfidence { confidence: 0.42, threshold: 0.5 },
-            Evidence { outline: Some(outline), lines: Some(lines), limits: Some(limits()), ..Evidence::default() },
-        );
-        let m = d.measures();
-        let failed: Vec<&str> = m.iter().filter(|m| m.pass == Some(false)).map(|m| m.name.as_str()).collect();
-        assert_eq!(failed, ["confidence (line features)"]);
-        let conf = m.iter().find(|m| m.name == "confidence (line features)").unwrap();
-        assert_eq!((conf.value.as_str(), conf.limit.as_str()), ("0.420", ">= 0.50"));
-        assert!(m.iter().any(|m| m.name == "outline fit (bracket up)" && m.pass == Some(true)));
-        assert_eq!(d.runner_up().as_deref(), Some("bracket down: fit 0.810"));
-        // A covered part in a region: the order is the failing measure.
-        let region = RegionFit { best: named(), support: 0.8, need: 0.93, coverage: 0.7, rms: 0.5, scale: 1.0 };
-        let covered = Decision::new(
-            Verdict::Covered { by: named() },
-            Evidence { region: Some(region), limits: Some(limits()), ..Evidence::default() },
-        );
-        let failed: Vec<String> = covered.measures().into_iter().filter(|m| m.pass == Some(false)).map(|m| m.name).collect();
-        assert_eq!(failed, ["outline explained (bracket up)", "lies on top"]);
-    }
-
-    #[test]
-    fn each_verdict_gives_its_reason() {
-        let rival = Rival { name: named(), fit: 0.9, best: 0.91, tolerance: 3.0, confidence: 0.7 };
-        for (v, r) in [
-            (Verdict::Accept, Reason::Ok),
-            (Verdict::AtBorder { lo: Pt::new(0.0, 0.0), hi: Pt::new(9.0, 9.0) }, Reason::AtBorder),
-            (Verdict::TooLarge { area: 1.0 }, Reason::Touching),
-            (Verdict::NoFit { need: 0.75, merged: false }, Reason::UnknownType),
-            (Verdict::NoFit { need: 0.75, merged: true }, Reason::Touching),
-            (Verdict::Scale { scale: 1.3, range: (0.9, 1.1) }, Reason::UnknownType),
-            (Verdict::Foreign { extra: 0.1, missing: 0.0, limit: 0.06 }, Reason::Touching),
-            (Verdict::Covered { by: named() }, Reason::Covered),
-            (Verdict::OrderUnclear, Reason::Touching),
-            (Verdict::Unseen { support: 0.8, need: 0.93 }, Reason::Touching),
-            (Verdict::Rival { rival }, Reason::Ambiguous),
-            (Verdict::LowConfidence { confidence: 0.3, threshold: 0.5 }, Reason::LowConfidence),
-            (Verdict::NoClearance { edge_px: 4 }, Reason::NoClearance),
-            (Verdict::Unexplained { area: 5000.0 }, Reason::Touching),
-        ] {
-            assert_eq!(v.reason(), r, "{v:?}");
-        }
-    }
-
-    #[test]
-    fn the_text_names_the_verdict_first_then_the_evidence() {
-        let d = Decision::new(
-            Verdict::Covered { by: named() },
-            Evidence {
-                region: Some(RegionFit {
-                    best: Named { type_name: "flange".into(), face: Face::Down },
-                    support: 0.81,
-                    need: 0.93,
-                    coverage: 0.7,
-                    rms: 1.2,
-                    scale: 1.0,
-                }),
-                ..Evidence::default()
-            },
-        );
-        assert_eq!(
-            d.to_string(),
-            "bracket up lies on it; found in a region of several parts: flange down outline explained 0.810 (need 0.93), on the region's outline 0.700, rms 1.20 px, scale 1.000"
-        );
-        let far = Verdict::Foreign { extra: 0.2, missing: 0.0, limit: 0.06 };
-        assert!(far.to_string().starts_with("the outline runs onto something else"), "{far}");
-    }
-}
+mod tests;

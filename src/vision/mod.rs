@@ -34,7 +34,7 @@ pub use lines::{LineDetector, LineFeature, Segment};
 pub use template::{KeepOut, LeftOut, Library, Template, TemplateError};
 
 use boundary::RefineParams;
-use decide::{Decision, Evidence, Named, NextFit, OutlineFit, RegionFit, Verdict};
+use decide::{Bounds, Decision, Measured, Named, NextFit, Order, OutlineFit, RegionFit, Rival};
 use detect::DetectParams;
 pub use geometry::Similarity;
 use geometry::{area_centroid, bounds};
@@ -298,7 +298,7 @@ pub struct PartEstimate {
     pub scale: f64,
     /// 0..1: the line features' agreement with the template at the pose.
     pub confidence: f64,
-    /// The robot may pick it (the verdict is [`Verdict::Accept`]).
+    /// The robot may pick it (`decision` accepts it).
     pub accepted: bool,
     /// `decision`'s verdict as the PLC's REASON (kept beside it: every consumer reads it).
     pub reason: Reason,
@@ -338,9 +338,9 @@ impl PartEstimate {
         }
     }
 
-    /// A part without a type (yet) at `at`, with the verdict so far.
-    fn unnamed(at: Pt, outline: Vec<Pt>, verdict: Verdict) -> Self {
-        let mut est = PartEstimate {
+    /// A part without a type (yet) at `at`, with the decision so far.
+    fn unnamed(at: Pt, outline: Vec<Pt>, decision: Decision) -> Self {
+        PartEstimate {
             type_name: None,
             type_id: 0,
             face: None,
@@ -349,25 +349,43 @@ impl PartEstimate {
             y: at.y,
             scale: 1.0,
             confidence: 0.0,
-            accepted: false,
-            reason: Reason::UnknownType,
-            decision: Decision::new(Verdict::OrderUnclear, Evidence::default()),
+            accepted: decision.verdict.accepts(),
+            reason: decision.verdict.reason(),
+            decision,
             fit: 0.0,
             matched: None,
             outline,
             axis: None,
             segments: Vec::new(),
             descriptor: Vec::new(),
-        };
-        est.conclude(verdict, Evidence::default());
-        est
+        }
     }
 
-    /// Records the verdict: REASON and acceptance follow from it, in this one place.
-    fn conclude(&mut self, verdict: Verdict, evidence: Evidence) {
-        self.reason = verdict.reason();
-        self.accepted = verdict == Verdict::Accept;
-        self.decision = Decision::new(verdict, evidence);
+    /// Names the part as template `tpl` (library entry `entry`) at `pose`, template pixels to
+    /// frame pixels: its type, face, angle and position (the template's origin).
+    fn name(&mut self, tpl: &Template, entry: usize, pose: Similarity) {
+        let origin = pose.apply(tpl.origin);
+        self.type_name = Some(tpl.type_name.clone());
+        self.type_id = tpl.type_id;
+        self.face = Some(tpl.face);
+        self.angle_deg = pose.angle_deg();
+        self.x = origin.x;
+        self.y = origin.y;
+        self.scale = pose.scale;
+        self.matched = Some((entry, pose));
+    }
+
+    /// Takes the decision: REASON and acceptance follow from it, in this one place, and a
+    /// verdict that names no type takes the type away.
+    fn conclude(&mut self, decision: Decision) {
+        self.reason = decision.verdict.reason();
+        self.accepted = decision.verdict.accepts();
+        if !decision.verdict.names_type() {
+            self.type_name = None;
+            self.type_id = 0;
+            self.face = None;
+        }
+        self.decision = decision;
     }
 }
 
@@ -428,6 +446,19 @@ struct Looked {
     segments: Option<Vec<Segment>>,
 }
 
+/// What the region search saw of a region, for measuring each part it found there.
+struct Seen<'a> {
+    frame: GrayView<'a>,
+    coarse: &'a detect::Coarse,
+    /// The region's refined outline, frame pixels.
+    outline: &'a [Pt],
+    /// The region's line segments down to [`Estimator::least_segment`].
+    segments: &'a [Segment],
+    /// The frame's pixel noise and the part-to-belt contrast, gray levels.
+    noise: f64,
+    contrast: f64,
+}
+
 struct Candidate {
     entry: usize,
     reg: register::Registration,
@@ -475,7 +506,7 @@ impl Estimator {
         self.params.min_segment_fraction * self.lib.entries.iter().map(|e| e.diag).fold(f64::INFINITY, f64::min)
     }
 
-    /// The limits its decisions are held to (recorded with each decision's evidence).
+    /// The limits its decisions are held to (recorded with each decision).
     fn limits(&self) -> decide::Limits {
         let p = &self.params;
         decide::Limits {
@@ -486,7 +517,17 @@ impl Estimator {
             ambiguity_margin: p.ambiguity_margin,
             confidence_margin: p.confidence_margin,
             accept_threshold: p.accept_threshold,
+            touching_area_ratio: p.touching_area_ratio,
+            max_area: p.touching_area_ratio * self.max_template_area * (p.scale_range.1 * p.scale_range.1),
         }
+    }
+
+    /// The line features' error weight at this noise and part-to-belt contrast: lambda0 (1 -
+    /// alpha noise/contrast), the method's lambda with the noise relative to the contrast.
+    fn lambda(&self, noise: f64, contrast: f64) -> f64 {
+        let p = &self.params;
+        let noise_level = if contrast > 0.0 { (noise / contrast).clamp(0.0, 1.0) } else { 1.0 };
+        p.lambda0 * (1.0 - p.alpha * noise_level)
     }
 
     /// The parameters in force.
@@ -546,26 +587,6 @@ impl Estimator {
         Ok(FrameEstimate { parts, debris, noise_sigma: noise, timings: tm })
     }
 
-    /// Whether the rival template fits the region's outline nearly as well as the best at the
-    /// best fit's own residual (the single-part path's test, on the stretch of outline the
-    /// region shows): noise widens the tolerance for finding a part, but must not blur a small
-    /// face difference into a tie.
-    fn rivals(
-        &self,
-        outline: &[Pt],
-        best: usize,
-        reg: &register::Registration,
-        tol: f64,
-        rival: usize,
-        rreg: &register::Registration,
-    ) -> bool {
-        let p = &self.params;
-        let tight = (4.0 * reg.rms).clamp(p.fit_tolerance, tol);
-        let b = register::measure(outline, &self.lib.entries[best].index, reg.pose, tight, 1).coverage;
-        let r = register::measure(outline, &self.lib.entries[rival].index, rreg.pose, tight, 1).coverage;
-        r >= b - p.ambiguity_margin
-    }
-
     /// The parts of a region the single-part path rejected as touching or unknown, each found
     /// and verified on its own (see [`clump`]); None when no template explains any of it, so
     /// that the single-part verdict stands. Also returns the debris found in the region.
@@ -588,108 +609,89 @@ impl Estimator {
         }
         // The region's segments down to the smallest part's minimum length; each part keeps
         // those its own size allows (5 % of its diagonal), as a separate part would.
-        let all_segments = match looked.segments {
+        let segments = match looked.segments {
             Some(s) => s,
             None => lines::part_segments(p.line_detector, &coarse.small, &coarse.edges, coarse.factor, blob, self.least_segment())?,
         };
-        let noise_level = if contrast > 0.0 { (noise / contrast).clamp(0.0, 1.0) } else { 1.0 };
-        let lambda = p.lambda0 * (1.0 - p.alpha * noise_level);
-        let mut out = Vec::with_capacity(ex.parts.len() + ex.leftover.len());
-        for f in &ex.parts {
-            let e = &self.lib.entries[f.entry];
-            let tpl = &e.template;
-            let pose = f.reg.pose;
-            let to_frame = pose.forward();
-            let origin = to_frame.apply(tpl.origin);
-            let mut est = PartEstimate {
-                type_name: Some(tpl.type_name.clone()),
-                type_id: tpl.type_id,
-                face: Some(tpl.face),
-                angle_deg: pose.angle_deg(),
-                x: origin.x,
-                y: origin.y,
-                scale: pose.scale,
-                confidence: 0.0,
-                accepted: false,
-                reason: Reason::Touching,
-                decision: Decision::new(Verdict::OrderUnclear, Evidence::default()),
-                fit: f.support,
-                matched: Some((f.entry, pose)),
-                outline: tpl.outline.iter().map(|&q| to_frame.apply(q)).collect(),
-                axis: None,
-                segments: Vec::new(),
-                descriptor: Vec::new(),
-            };
-            let diag = e.diag * pose.scale;
-            let segments: Vec<Segment> = all_segments.iter().filter(|s| s.len() >= p.min_segment_fraction * diag).copied().collect();
-            est.confidence = confidence(&tpl.segments, &segments, &pose, diag, lambda);
-            let (lo, hi) = bounds(&est.outline);
-            let mut evidence = Evidence {
-                region: Some(RegionFit {
-                    best: named(tpl),
-                    support: f.support,
-                    need: p.min_support,
-                    coverage: f.reg.coverage,
-                    rms: f.reg.rms,
-                    scale: pose.scale,
-                }),
-                lines: Some(decide::Lines { confidence: est.confidence, noise, contrast, lambda }),
-                limits: Some(self.limits()),
-                ..Evidence::default()
-            };
-            let verdict = if pose.scale < p.scale_range.0 || pose.scale > p.scale_range.1 {
-                Verdict::Scale { scale: pose.scale, range: p.scale_range }
-            } else if reaches_border(lo, hi, frame) {
-                Verdict::AtBorder { lo, hi }
-            } else if let Some(k) = f.under {
-                Verdict::Covered { by: named(&self.lib.entries[ex.parts[k].entry].template) }
-            } else if f.order_unclear {
-                Verdict::OrderUnclear
-            } else if f.support < p.min_support {
-                Verdict::Unseen { support: f.support, need: p.min_support }
-            } else if let Some(rival) = f.rival.and_then(|(ri, rreg, rsupport)| {
-                // The cheap outline tests first: the rival's line features are only scored when
-                // its outline ties.
-                if rsupport < f.support - p.ambiguity_margin || !self.rivals(&whole.outline, f.entry, &f.reg, f.tolerance, ri, &rreg) {
-                    return None;
-                }
-                let rc = confidence(&self.lib.entries[ri].template.segments, &segments, &rreg.pose, diag, lambda);
-                (est.confidence - rc < p.confidence_margin).then(|| decide::Rival {
-                    name: named(&self.lib.entries[ri].template),
-                    fit: rsupport,
-                    best: f.support,
-                    tolerance: f.tolerance,
-                    confidence: rc,
-                })
-            }) {
-                evidence.rival = Some(rival.clone());
-                Verdict::Rival { rival }
-            } else if est.confidence < p.accept_threshold {
-                Verdict::LowConfidence { confidence: est.confidence, threshold: p.accept_threshold }
-            } else if let Some(n) = blocked_footprint(coarse, tpl, &pose, &est.outline) {
-                Verdict::NoClearance { edge_px: n }
-            } else {
-                Verdict::Accept
-            };
-            if matches!(verdict, Verdict::Scale { .. }) {
-                est.type_name = None;
-                est.type_id = 0;
-                est.face = None;
-            }
-            est.conclude(verdict, evidence);
-            out.push(est);
-        }
+        let seen = Seen { frame, coarse, outline: &whole.outline, segments: &segments, noise, contrast };
+        let mut out: Vec<PartEstimate> = ex.parts.iter().map(|f| self.region_part(&seen, &ex, f)).collect();
         let mut debris = 0;
         for &(area, c) in &ex.leftover {
             if area < self.min_area {
                 debris += 1;
                 continue;
             }
-            out.push(PartEstimate::unnamed(c, Vec::new(), Verdict::Unexplained { area }));
+            let measured = Measured { unexplained: Some(area), ..Measured::default() };
+            out.push(PartEstimate::unnamed(c, Vec::new(), decide::decide(measured, self.limits())));
         }
         Ok(Some((out, debris)))
     }
 
+    /// One part the region search found: named at its pose, measured, decided.
+    fn region_part(&self, seen: &Seen<'_>, ex: &clump::Explained, f: &clump::Found) -> PartEstimate {
+        let p = &self.params;
+        let e = &self.lib.entries[f.entry];
+        let tpl = &e.template;
+        let pose = f.reg.pose;
+        let to_frame = pose.forward();
+        let limits = self.limits();
+        let placed = tpl.outline.iter().map(|&q| to_frame.apply(q)).collect();
+        let mut est = PartEstimate::unnamed(Pt::new(0.0, 0.0), placed, decide::decide(Measured::default(), limits));
+        est.name(tpl, f.entry, pose);
+        est.fit = f.support;
+        let diag = e.diag * pose.scale;
+        let segments: Vec<Segment> = seen.segments.iter().filter(|s| s.len() >= p.min_segment_fraction * diag).copied().collect();
+        let lambda = self.lambda(seen.noise, seen.contrast);
+        est.confidence = confidence(&tpl.segments, &segments, &pose, diag, lambda);
+        let mut m = Measured {
+            border: Some(outline_bounds(&est.outline, seen.frame)),
+            region: Some(RegionFit { best: named(tpl), support: f.support, coverage: f.reg.coverage, rms: f.reg.rms, scale: pose.scale }),
+            order: match (f.under, f.order_unclear) {
+                (Some(k), _) => Order::Under(named(&self.lib.entries[ex.parts[k].entry].template)),
+                (None, true) => Order::Unclear,
+                (None, false) => Order::Free,
+            },
+            rival: f.rival.map(|rival| self.region_rival(seen.outline, f, rival, &segments, diag, lambda)),
+            lines: Some(decide::Lines { confidence: est.confidence, noise: seen.noise, contrast: seen.contrast, lambda }),
+            ..Measured::default()
+        };
+        // The footprint is looked at only for a part nothing else rejects.
+        if decide::failed(&m, &limits).is_none() {
+            m.blocked = Some(blocked_footprint(seen.coarse, tpl, &pose, &est.outline));
+        }
+        est.conclude(decide::decide(m, limits));
+        est
+    }
+
+    /// The other type or face the region search found explaining the same material as `f`,
+    /// held against it by the image's support for each and, at the tight tolerance, by how
+    /// much of each template's outline the region's outline covers; with its line features'
+    /// confidence at its own pose.
+    fn region_rival(
+        &self,
+        outline: &[Pt],
+        f: &clump::Found,
+        (entry, reg, support): (usize, register::Registration, f64),
+        segments: &[Segment],
+        diag: f64,
+        lambda: f64,
+    ) -> Rival {
+        let tight = register::tight_tolerance(f.reg.rms, self.params.fit_tolerance, f.tolerance);
+        let coverage = |entry: usize, pose| register::measure(outline, &self.lib.entries[entry].index, pose, tight, 1).coverage;
+        let tpl = &self.lib.entries[entry].template;
+        Rival {
+            name: named(tpl),
+            fit: coverage(entry, reg.pose),
+            best: coverage(f.entry, f.reg.pose),
+            tolerance: tight,
+            support: Some((support, f.support)),
+            confidence: confidence(&tpl.segments, segments, &reg.pose, diag, lambda),
+        }
+    }
+
+    /// A separate region, looked at as one part: its outline, line features and best template
+    /// measured step by step, each step only while the ladder has not rejected it; also what the
+    /// region search needs should it take over.
     fn estimate_part(
         &self,
         frame: GrayView<'_>,
@@ -699,130 +701,102 @@ impl Estimator {
         tm: &mut Timings,
     ) -> Result<(PartEstimate, Looked), FrameError> {
         let p = &self.params;
-        let (_, c0) = area_centroid(&blob.outline);
-        let mut est = PartEstimate::unnamed(c0, blob.outline.clone(), Verdict::NoFit { need: p.min_fit, merged: false });
+        let limits = self.limits();
+        // The outline, refined on the full frame.
         let t = Instant::now();
         let refined = boundary::refine(frame, &blob.outline, noise, &p.refine_params(coarse.factor));
-        let contrast = refined.contrast;
-        let outline = refined.outline;
+        let (contrast, outline) = (refined.contrast, refined.outline);
         let (area, centroid) = area_centroid(&outline);
         let area = area.abs();
-        est.x = centroid.x;
-        est.y = centroid.y;
-        est.outline = outline.clone();
+        let mut est = PartEstimate::unnamed(centroid, outline.clone(), decide::decide(Measured::default(), limits));
         tm.boundary += ms(t);
-        // A part cut by the frame edge has an outline running along it (the coarse region of a
-        // whole part may reach the edge through the closing, so the refined outline decides).
-        let (lo, hi) = bounds(&outline);
-        if reaches_border(lo, hi, frame) {
-            est.conclude(Verdict::AtBorder { lo, hi }, Evidence::default());
-            return Ok((est, Looked { contrast, noise, segments: None }));
-        }
-        let max_scale2 = p.scale_range.1 * p.scale_range.1;
-        if area > p.touching_area_ratio * self.max_template_area * max_scale2 {
-            est.conclude(Verdict::TooLarge { area }, Evidence::default());
+        // Whole in view (the coarse region of a whole part may reach the edge through the
+        // closing, so the refined outline decides) and the size of one part at most.
+        let mut m = Measured { border: Some(outline_bounds(&outline, frame)), area: Some(area), ..Measured::default() };
+        if let Some(d) = decide::failed(&m, &limits) {
+            est.conclude(d);
             return Ok((est, Looked { contrast, noise, segments: None }));
         }
 
+        // Its line features.
         let t = Instant::now();
+        let (lo, hi) = bounds(&outline);
         let diag = (hi - lo).norm();
-        // Down to the smallest template's minimum length at once: should the region hold
-        // several parts, each keeps those its own size allows, and the detector runs once.
-        let all = lines::part_segments(
-            p.line_detector,
-            &coarse.small,
-            &coarse.edges,
-            coarse.factor,
-            blob,
-            self.least_segment().min(p.min_segment_fraction * diag),
-        )?;
-        let segments: Vec<Segment> = all.iter().filter(|s| s.len() >= p.min_segment_fraction * diag).copied().collect();
+        let all = self.line_features(coarse, blob, diag, centroid, &mut est)?;
         let looked = Looked { contrast, noise, segments: Some(all) };
-        let axis = lines::orientation_axis(&segments);
-        let theta = axis.map(|s| s.direction()).unwrap_or(0.0);
-        est.descriptor = lines::descriptor(&segments, centroid, theta);
-        est.axis = axis;
-        est.segments = segments;
         tm.lines += ms(t);
 
+        // The best template and its pose.
         let (aligned, cands) = self.candidates(&outline, centroid, noise, tm);
-
         let best = &cands[0];
-        let entry = &self.lib.entries[best.entry];
-        let tpl = &entry.template;
+        let tpl = &self.lib.entries[best.entry].template;
         let pose = best.reg.pose;
-        let origin = pose.apply(tpl.origin);
         est.fit = best.reg.fit();
         est.scale = pose.scale;
         est.matched = Some((best.entry, pose));
-        let next = self.runners_up(&aligned, &cands, best.entry);
-        let mut evidence = Evidence {
-            outline: Some(OutlineFit {
-                best: named(tpl),
-                fit: est.fit,
-                inliers: best.reg.inliers,
-                coverage: best.reg.coverage,
-                extra: best.reg.extra,
-                missing: best.reg.missing,
-                rms: best.reg.rms,
-                tolerance: best.tolerance,
-                corr_rms: best.corr_rms,
-                scale: pose.scale,
-                next,
-            }),
-            limits: Some(self.limits()),
-            ..Evidence::default()
-        };
-        if est.fit < p.min_fit {
-            // Several parts merged into one region are larger than the template they resemble.
-            let nominal = self.lib.entries[aligned[0].0].template.area;
-            est.conclude(Verdict::NoFit { need: p.min_fit, merged: area > p.touching_area_ratio * nominal }, evidence);
-            return Ok((est, looked));
-        }
-        if pose.scale < p.scale_range.0 || pose.scale > p.scale_range.1 {
-            est.conclude(Verdict::Scale { scale: pose.scale, range: p.scale_range }, evidence);
+        m.outline = Some(self.outline_fit(&aligned, &cands));
+        if let Some(d) = decide::failed(&m, &limits) {
+            est.conclude(d);
             return Ok((est, looked));
         }
         // From here on the part has a type, face and pose, accepted or not.
-        est.type_name = Some(tpl.type_name.clone());
-        est.type_id = tpl.type_id;
-        est.face = Some(tpl.face);
-        est.angle_deg = pose.angle_deg();
-        est.x = origin.x;
-        est.y = origin.y;
-        if best.reg.extra > p.max_foreign || best.reg.missing > p.max_foreign {
-            est.conclude(Verdict::Foreign { extra: best.reg.extra, missing: best.reg.missing, limit: p.max_foreign }, evidence);
-            return Ok((est, looked));
-        }
+        est.name(tpl, best.entry, pose);
 
+        // The line features at the pose, and those of a rival whose outline ties.
         let t = Instant::now();
-        let noise_level = if refined.contrast > 0.0 { (noise / refined.contrast).clamp(0.0, 1.0) } else { 1.0 };
-        let lambda = p.lambda0 * (1.0 - p.alpha * noise_level);
+        let lambda = self.lambda(noise, contrast);
         est.confidence = confidence(&tpl.segments, &est.segments, &pose, diag, lambda);
-        // A different type or face whose outline fits nearly as well must be told apart by the
-        // line features, or the part is ambiguous. "Nearly as well" is judged at a tolerance
-        // from the best fit's own residual (four RMS, within the generous one): noise widens
-        // the tolerance for naming a type, but must not blur a small face difference (an
-        // eyelet on one side) into a tie.
-        let rival = self.rival(&outline, &cands, &est.segments, diag, lambda);
+        m.lines = Some(decide::Lines { confidence: est.confidence, noise, contrast, lambda });
+        m.rival = self.rival(&outline, &cands, &est.segments, diag, lambda, &limits);
         tm.confidence += ms(t);
-        evidence.lines = Some(decide::Lines { confidence: est.confidence, noise, contrast: refined.contrast, lambda });
-        if let Some(rival) = rival {
-            evidence.rival = Some(rival.clone());
-            if est.confidence - rival.confidence < p.confidence_margin {
-                est.conclude(Verdict::Rival { rival }, evidence);
-                return Ok((est, looked));
-            }
+        // The footprint is looked at only for a part nothing else rejects.
+        if decide::failed(&m, &limits).is_none() {
+            m.blocked = Some(blocked_footprint(coarse, tpl, &pose, &outline));
         }
-        let verdict = if est.confidence < p.accept_threshold {
-            Verdict::LowConfidence { confidence: est.confidence, threshold: p.accept_threshold }
-        } else if let Some(n) = blocked_footprint(coarse, tpl, &pose, &outline) {
-            Verdict::NoClearance { edge_px: n }
-        } else {
-            Verdict::Accept
-        };
-        est.conclude(verdict, evidence);
+        est.conclude(decide::decide(m, limits));
         Ok((est, looked))
+    }
+
+    /// Stage 3 for a separate region: its line segments down to the smallest template's minimum
+    /// length at once (should the region hold several parts, each keeps those its own size
+    /// allows, and the detector runs once), returned; those the part keeps (5 % of its diagonal
+    /// `diag`), its orientation axis and LFI descriptor, into `est`.
+    fn line_features(
+        &self,
+        coarse: &detect::Coarse,
+        blob: &detect::Blob,
+        diag: f64,
+        centroid: Pt,
+        est: &mut PartEstimate,
+    ) -> Result<Vec<Segment>, FrameError> {
+        let p = &self.params;
+        let least = self.least_segment().min(p.min_segment_fraction * diag);
+        let all = lines::part_segments(p.line_detector, &coarse.small, &coarse.edges, coarse.factor, blob, least)?;
+        let segments: Vec<Segment> = all.iter().filter(|s| s.len() >= p.min_segment_fraction * diag).copied().collect();
+        let axis = lines::orientation_axis(&segments);
+        est.descriptor = lines::descriptor(&segments, centroid, axis.map(|s| s.direction()).unwrap_or(0.0));
+        est.axis = axis;
+        est.segments = segments;
+        Ok(all)
+    }
+
+    /// How the outline fits the best candidate, with the runners-up the "why" shows.
+    fn outline_fit(&self, aligned: &[(usize, correlate::Alignment)], cands: &[Candidate]) -> OutlineFit {
+        let best = &cands[0];
+        OutlineFit {
+            best: named(&self.lib.entries[best.entry].template),
+            fit: best.reg.fit(),
+            inliers: best.reg.inliers,
+            coverage: best.reg.coverage,
+            extra: best.reg.extra,
+            missing: best.reg.missing,
+            rms: best.reg.rms,
+            tolerance: best.tolerance,
+            corr_rms: best.corr_rms,
+            scale: best.reg.pose.scale,
+            nominal: self.lib.entries[aligned[0].0].template.area,
+            next: self.runners_up(aligned, cands, best.entry),
+        }
     }
 
     /// Stages 4 and 4b: every template by correlation distance (best first), and the closest
@@ -903,14 +877,19 @@ impl Estimator {
             .collect()
     }
 
-    /// The first other type or face whose outline fits within the ambiguity margin of the best
-    /// at a tight tolerance (four times the best's residual, within the generous one), with its
-    /// fit, the best's at that tolerance, the tolerance and its line features' confidence.
-    fn rival(&self, outline: &[Pt], cands: &[Candidate], found: &[Segment], diag: f64, lambda: f64) -> Option<decide::Rival> {
-        let p = &self.params;
+    /// The first other type or face (by fit) whose outline ties with the best's at the tight
+    /// tolerance ([`Rival::ties`]), with its line features' confidence at its own pose.
+    fn rival(
+        &self,
+        outline: &[Pt],
+        cands: &[Candidate],
+        found: &[Segment],
+        diag: f64,
+        lambda: f64,
+        limits: &decide::Limits,
+    ) -> Option<Rival> {
         let best = &cands[0];
         let tpl = &self.lib.entries[best.entry].template;
-        let tight = (4.0 * best.reg.rms).clamp(p.fit_tolerance, best.tolerance);
         let others: Vec<&Candidate> = cands
             .iter()
             .skip(1)
@@ -922,19 +901,18 @@ impl Estimator {
         if others.is_empty() {
             return None;
         }
+        let tight = register::tight_tolerance(best.reg.rms, self.params.fit_tolerance, best.tolerance);
         let best_tight = register::measure(outline, &self.lib.entries[best.entry].index, best.reg.pose, tight, 1).fit();
-        let (c, fit) = others
+        let (c, mut rival) = others
             .into_iter()
-            .map(|c| (c, register::measure(outline, &self.lib.entries[c.entry].index, c.reg.pose, tight, 4).fit()))
-            .find(|(_, fit)| *fit >= best_tight - p.ambiguity_margin)?;
-        let e = &self.lib.entries[c.entry];
-        Some(decide::Rival {
-            name: named(&e.template),
-            fit,
-            best: best_tight,
-            tolerance: tight,
-            confidence: confidence(&e.template.segments, found, &c.reg.pose, diag, lambda),
-        })
+            .map(|c| {
+                let e = &self.lib.entries[c.entry];
+                let fit = register::measure(outline, &e.index, c.reg.pose, tight, 4).fit();
+                (c, Rival { name: named(&e.template), fit, best: best_tight, tolerance: tight, support: None, confidence: 0.0 })
+            })
+            .find(|(_, r)| r.ties(limits))?;
+        rival.confidence = confidence(&self.lib.entries[c.entry].template.segments, found, &c.reg.pose, diag, lambda);
+        Some(rival)
     }
 }
 
@@ -942,25 +920,30 @@ fn named(t: &Template) -> Named {
     Named { type_name: t.type_name.clone(), face: t.face }
 }
 
-/// Whether an outline with bounds `lo`..`hi` comes within 3 px of the frame's edge: the part may
-/// be cut off there.
-fn reaches_border(lo: Pt, hi: Pt, frame: GrayView<'_>) -> bool {
+/// An outline's bounds and whether they come within 3 px of the frame's edge: the part may be
+/// cut off there.
+fn outline_bounds(outline: &[Pt], frame: GrayView<'_>) -> Bounds {
+    let (lo, hi) = bounds(outline);
     let edge = 3.0;
-    lo.x < edge || lo.y < edge || hi.x > frame.width() as f64 - 1.0 - edge || hi.y > frame.height() as f64 - 1.0 - edge
+    let at_border = lo.x < edge || lo.y < edge || hi.x > frame.width() as f64 - 1.0 - edge || hi.y > frame.height() as f64 - 1.0 - edge;
+    Bounds { lo, hi, at_border }
 }
 
 /// Other material inside the part's keep-out footprint: the number of the decimated frame's edge
 /// pixels inside any of the template's keep-out circles (placed by `pose`) that are neither
 /// inside the part's own outline (`own`, frame pixels) nor within a few pixels of it, when there
-/// are at least three (a speck of noise is not an obstacle); None without a footprint.
-fn blocked_footprint(coarse: &detect::Coarse, tpl: &Template, pose: &Similarity, own: &[Pt]) -> Option<usize> {
+/// are at least three (a speck of noise is not an obstacle); 0 when the footprint is clear or
+/// the part has none.
+fn blocked_footprint(coarse: &detect::Coarse, tpl: &Template, pose: &Similarity, own: &[Pt]) -> usize {
     use opencv::prelude::*;
     if tpl.keep_out.is_empty() {
-        return None;
+        return 0;
     }
     let f = coarse.factor as f64;
     let (w, h) = (coarse.edges.cols() as usize, coarse.edges.rows() as usize);
-    let edges = coarse.edges.data_bytes().ok()?;
+    let Ok(edges) = coarse.edges.data_bytes() else {
+        return 0;
+    };
     let poly: Vec<Pt> = own.iter().step_by(4).copied().collect();
     let spacing = poly.windows(2).map(|p| (p[1] - p[0]).norm()).fold(0.0, f64::max);
     let band = 3.0 * f + spacing;
@@ -984,7 +967,7 @@ fn blocked_footprint(coarse: &detect::Coarse, tpl: &Template, pose: &Similarity,
             }
         }
     }
-    (count >= 3).then_some(count)
+    if count >= 3 { count } else { 0 }
 }
 
 /// conf = (1/N) sum_k gamma_k exp(-lambda err_k) over the template's N line features mapped into

@@ -277,6 +277,14 @@ pub struct Registration {
     pub missing: f64,
 }
 
+/// The tolerance at which a rival template is held against the best: four times the best fit's
+/// own residual, within the fit tolerance (`floor`) and the generous one (`generous`) it was
+/// named at. Noise widens the tolerance for naming a type, but must not blur a small face
+/// difference into a tie. One rule for the separate-part path and the region search.
+pub fn tight_tolerance(best_rms: f64, floor: f64, generous: f64) -> f64 {
+    (4.0 * best_rms).max(floor).min(generous)
+}
+
 /// Beyond this distance (template pixels) an outline point is not a local segmentation
 /// difference but something else: three tolerances, within 12..=24 px.
 pub fn gross_distance(tolerance: f64) -> f64 {

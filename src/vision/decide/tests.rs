@@ -1,0 +1,404 @@
+use super::*;
+
+fn named(type_name: &str, face: Face) -> Named {
+    Named { type_name: type_name.into(), face }
+}
+
+fn limits() -> Limits {
+    Limits {
+        min_fit: 0.75,
+        max_foreign: 0.06,
+        min_support: 0.93,
+        scale_range: (0.85, 1.18),
+        ambiguity_margin: 0.1,
+        confidence_margin: 0.15,
+        accept_threshold: 0.5,
+        touching_area_ratio: 1.3,
+        max_area: 200_000.0,
+    }
+}
+
+fn bounds() -> Bounds {
+    Bounds { lo: Pt::new(100.0, 120.0), hi: Pt::new(400.0, 300.0), at_border: false }
+}
+
+fn lines(confidence: f64) -> Lines {
+    Lines { confidence, noise: 2.0, contrast: 100.0, lambda: 24.9 }
+}
+
+/// A separate part that passes every test.
+fn separate() -> Measured {
+    Measured {
+        border: Some(bounds()),
+        area: Some(50_000.0),
+        outline: Some(OutlineFit {
+            best: named("bracket", Face::Up),
+            fit: 0.97,
+            inliers: 0.98,
+            coverage: 0.97,
+            extra: 0.01,
+            missing: 0.02,
+            rms: 0.4,
+            tolerance: 3.0,
+            corr_rms: 0.01,
+            scale: 1.0,
+            nominal: 50_000.0,
+            next: vec![(named("bracket", Face::Down), NextFit::Fit(0.81))],
+        }),
+        lines: Some(lines(0.8)),
+        blocked: Some(0),
+        ..Measured::default()
+    }
+}
+
+/// A part found in a region of several that passes every test.
+fn region() -> Measured {
+    Measured {
+        border: Some(bounds()),
+        region: Some(RegionFit { best: named("bracket", Face::Up), support: 0.97, coverage: 0.8, rms: 0.5, scale: 1.0 }),
+        lines: Some(lines(0.8)),
+        blocked: Some(0),
+        ..Measured::default()
+    }
+}
+
+/// Which variant a verdict is; exhaustive, so that a new verdict must be added to the table.
+fn variant(v: &Verdict) -> usize {
+    match v {
+        Verdict::Accept => 0,
+        Verdict::AtBorder { .. } => 1,
+        Verdict::TooLarge { .. } => 2,
+        Verdict::NoFit { .. } => 3,
+        Verdict::Scale { .. } => 4,
+        Verdict::Foreign { .. } => 5,
+        Verdict::Covered { .. } => 6,
+        Verdict::OrderUnclear => 7,
+        Verdict::Unseen { .. } => 8,
+        Verdict::Rival { .. } => 9,
+        Verdict::LowConfidence { .. } => 10,
+        Verdict::NoClearance { .. } => 11,
+        Verdict::Unexplained { .. } => 12,
+    }
+}
+const VERDICTS: usize = 13;
+
+/// One failed limit: what it does to a passing record, and the verdict and "why" row it gives.
+struct Failure {
+    name: &'static str,
+    /// Applies to a separate part / a part in a region.
+    separate: bool,
+    region: bool,
+    apply: fn(&mut Measured),
+    verdict: fn(&Verdict) -> bool,
+    row: &'static str,
+}
+
+fn set_scale(m: &mut Measured, s: f64) {
+    if let Some(o) = &mut m.outline {
+        o.scale = s;
+    }
+    if let Some(r) = &mut m.region {
+        r.scale = s;
+    }
+}
+
+/// Every failure, in the ladder's order.
+fn failures() -> Vec<Failure> {
+    vec![
+        Failure {
+            name: "border",
+            separate: true,
+            region: true,
+            apply: |m| m.border.as_mut().unwrap().at_border = true,
+            verdict: |v| matches!(v, Verdict::AtBorder { .. }),
+            row: "outline clear of the frame's edge",
+        },
+        Failure {
+            name: "size",
+            separate: true,
+            region: false,
+            apply: |m| m.area = Some(300_000.0),
+            verdict: |v| matches!(v, Verdict::TooLarge { area } if *area == 300_000.0),
+            row: "region area",
+        },
+        Failure {
+            name: "fit",
+            separate: true,
+            region: false,
+            apply: |m| m.outline.as_mut().unwrap().fit = 0.6,
+            verdict: |v| matches!(v, Verdict::NoFit { merged: false, .. }),
+            row: "outline fit (bracket up)",
+        },
+        Failure {
+            name: "scale",
+            separate: true,
+            region: true,
+            apply: |m| set_scale(m, 1.3),
+            verdict: |v| matches!(v, Verdict::Scale { scale, .. } if *scale == 1.3),
+            row: "scale",
+        },
+        Failure {
+            name: "foreign",
+            separate: true,
+            region: false,
+            apply: |m| m.outline.as_mut().unwrap().missing = 0.2,
+            verdict: |v| matches!(v, Verdict::Foreign { missing, .. } if *missing == 0.2),
+            row: "extra outline (other material), missing outline (hidden)",
+        },
+        Failure {
+            name: "covered",
+            separate: false,
+            region: true,
+            apply: |m| m.order = Order::Under(named("flange", Face::Down)),
+            verdict: |v| matches!(v, Verdict::Covered { by } if by.type_name == "flange"),
+            row: "lies on top",
+        },
+        Failure {
+            name: "support",
+            separate: false,
+            region: true,
+            apply: |m| m.region.as_mut().unwrap().support = 0.8,
+            verdict: |v| matches!(v, Verdict::Unseen { support, .. } if *support == 0.8),
+            row: "outline explained (bracket up)",
+        },
+        Failure {
+            name: "rival",
+            separate: true,
+            region: true,
+            apply: |m| {
+                let support = m.region.as_ref().map(|r| (r.support - 0.02, r.support));
+                m.rival = Some(Rival { name: named("bracket", Face::Down), fit: 0.9, best: 0.95, tolerance: 1.6, support, confidence: 0.7 })
+            },
+            verdict: |v| matches!(v, Verdict::Rival { rival } if rival.name.face == Face::Down),
+            row: "confidence lead over bracket down",
+        },
+        Failure {
+            name: "confidence",
+            separate: true,
+            region: true,
+            apply: |m| m.lines.as_mut().unwrap().confidence = 0.3,
+            verdict: |v| matches!(v, Verdict::LowConfidence { confidence, .. } if *confidence == 0.3),
+            row: "confidence (line features)",
+        },
+        Failure {
+            name: "clearance",
+            separate: true,
+            region: true,
+            apply: |m| m.blocked = Some(7),
+            verdict: |v| matches!(v, Verdict::NoClearance { edge_px: 7 }),
+            row: "keep-out footprint clear",
+        },
+    ]
+}
+
+fn failed_rows(d: &Decision) -> Vec<String> {
+    d.measures().into_iter().filter(|m| m.pass == Some(false)).map(|m| m.name).collect()
+}
+
+/// The ladder, table-driven: every failure alone gives its verdict and its row; for every pair
+/// of failures, on either path, the ladder's first is the verdict, and the "why" panel reports
+/// it as the one failed row, after nothing but passed (or information) rows.
+#[test]
+fn the_ladder_reports_its_first_failure() {
+    for (path, base) in [("separate", separate()), ("region", region())] {
+        let d = decide(base.clone(), limits());
+        assert_eq!(d.verdict, Verdict::Accept, "{path}: {d}");
+        assert!(d.measures().iter().all(|m| m.pass != Some(false)), "{path}: {:?}", d.measures());
+        assert!(failed(&base, &limits()).is_none(), "{path}");
+        let fs: Vec<Failure> = failures().into_iter().filter(|f| if path == "separate" { f.separate } else { f.region }).collect();
+        for (i, first) in fs.iter().enumerate() {
+            let mut m = base.clone();
+            (first.apply)(&mut m);
+            let d = decide(m.clone(), limits());
+            assert!((first.verdict)(&d.verdict), "{path} {}: {:?}", first.name, d.verdict);
+            assert_eq!(failed_rows(&d), [first.row], "{path} {}", first.name);
+            assert_eq!(failed(&m, &limits()).map(|d| d.verdict), Some(d.verdict.clone()), "{path} {}", first.name);
+            let rows = d.measures();
+            assert_eq!(
+                rows.iter().rposition(|r| r.pass.is_some()),
+                rows.iter().position(|r| r.pass == Some(false)),
+                "{path} {}",
+                first.name
+            );
+            for second in &fs[i + 1..] {
+                for order in [[first, second], [second, first]] {
+                    let mut m = base.clone();
+                    for f in order {
+                        (f.apply)(&mut m);
+                    }
+                    let d = decide(m, limits());
+                    assert!((first.verdict)(&d.verdict), "{path} {} + {}: {:?}", first.name, second.name, d.verdict);
+                    assert_eq!(failed_rows(&d), [first.row], "{path} {} + {}", first.name, second.name);
+                }
+            }
+        }
+    }
+}
+
+/// Every verdict is reached by some record, and a part in a region and a separate part with the
+/// same measures get the same decision.
+#[test]
+fn every_verdict_is_reached_and_both_paths_agree() {
+    let mut reached = [false; VERDICTS];
+    for (path, base) in [("separate", separate()), ("region", region())] {
+        reached[variant(&decide(base.clone(), limits()).verdict)] = true;
+        for f in failures().iter().filter(|f| if path == "separate" { f.separate } else { f.region }) {
+            let mut m = base.clone();
+            (f.apply)(&mut m);
+            reached[variant(&decide(m, limits()).verdict)] = true;
+        }
+    }
+    let mut unclear = region();
+    unclear.order = Order::Unclear;
+    reached[variant(&decide(unclear, limits()).verdict)] = true;
+    let leftover = Measured { unexplained: Some(9000.0), ..Measured::default() };
+    let d = decide(leftover, limits());
+    assert_eq!(d.verdict, Verdict::Unexplained { area: 9000.0 });
+    assert_eq!(failed_rows(&d), ["material explained"]);
+    reached[variant(&d.verdict)] = true;
+    assert!(
+        reached.iter().all(|&r| r),
+        "verdicts never reached: {:?}",
+        reached.iter().enumerate().filter(|(_, r)| !**r).collect::<Vec<_>>()
+    );
+
+    for f in failures().iter().filter(|f| f.separate && f.region) {
+        let (mut a, mut b) = (separate(), region());
+        (f.apply)(&mut a);
+        (f.apply)(&mut b);
+        let (a, b) = (decide(a, limits()), decide(b, limits()));
+        assert_eq!(variant(&a.verdict), variant(&b.verdict), "{}", f.name);
+        assert_eq!(a.verdict.reason(), b.verdict.reason(), "{}", f.name);
+        assert_eq!(failed_rows(&a), failed_rows(&b), "{}", f.name);
+    }
+}
+
+/// A region much larger than the template it resembles is several parts (touching), not an
+/// unknown type.
+#[test]
+fn no_fit_on_a_region_twice_the_part_is_touching() {
+    let mut m = separate();
+    m.outline.as_mut().unwrap().fit = 0.5;
+    m.area = Some(110_000.0);
+    let d = decide(m, limits());
+    assert_eq!(d.verdict, Verdict::NoFit { need: 0.75, merged: true });
+    assert_eq!(d.verdict.reason(), Reason::Touching);
+}
+
+/// A record that stops short of a type or of the line features is never accepted.
+#[test]
+fn an_incomplete_record_is_never_accepted() {
+    let mut no_lines = separate();
+    no_lines.lines = None;
+    let mut no_fit = region();
+    no_fit.region = None;
+    for m in [Measured::default(), no_lines, no_fit, Measured { border: Some(bounds()), ..Measured::default() }] {
+        let d = decide(m.clone(), limits());
+        assert_eq!(d.verdict, Verdict::NoFit { need: 0.75, merged: false }, "{m:?}");
+        assert!(!d.verdict.accepts());
+    }
+}
+
+/// The one rival test: a rival ties when every fit measured of it comes within the margin of
+/// the best's; one that does not tie decides nothing, whatever its line features.
+#[test]
+fn a_rival_rejects_only_when_it_ties_and_its_lines_are_not_clearly_worse() {
+    let rival = |fit: f64, support: Option<(f64, f64)>, confidence: f64| Rival {
+        name: named("flange", Face::Up),
+        fit,
+        best: 0.95,
+        tolerance: 1.6,
+        support,
+        confidence,
+    };
+    let l = limits();
+    assert!(rival(0.86, None, 0.0).ties(&l));
+    assert!(!rival(0.84, None, 0.0).ties(&l));
+    assert!(rival(0.9, Some((0.9, 0.97)), 0.0).ties(&l));
+    assert!(!rival(0.9, Some((0.8, 0.97)), 0.0).ties(&l), "the support must tie too");
+    for (path, base) in [("separate", separate()), ("region", region())] {
+        for (r, verdict) in [
+            (rival(0.9, base.region.as_ref().map(|_| (0.95, 0.97)), 0.7), 9),
+            (rival(0.9, base.region.as_ref().map(|_| (0.95, 0.97)), 0.6), 0),
+            (rival(0.8, base.region.as_ref().map(|_| (0.95, 0.97)), 0.8), 0),
+        ] {
+            let mut m = base.clone();
+            m.rival = Some(r.clone());
+            let d = decide(m, l);
+            assert_eq!(variant(&d.verdict), verdict, "{path}: {r:?} -> {}", d.verdict);
+        }
+    }
+}
+
+/// The why panel's measures: each test made with its limit and whether it passed, the failing
+/// one the verdict's, nothing the ladder did not reach; the runner-up named.
+#[test]
+fn measures_say_which_limit_a_part_failed() {
+    let mut m = separate();
+    m.lines = Some(lines(0.42));
+    m.blocked = None;
+    let d = decide(m, limits());
+    assert_eq!(d.verdict, Verdict::LowConfidence { confidence: 0.42, threshold: 0.5 });
+    let rows = d.measures();
+    let names: Vec<&str> = rows.iter().filter(|m| m.pass.is_some()).map(|m| m.name.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "outline clear of the frame's edge",
+            "region area",
+            "outline fit (bracket up)",
+            "scale",
+            "extra outline (other material), missing outline (hidden)",
+            "confidence (line features)"
+        ]
+    );
+    let conf = rows.iter().find(|m| m.name == "confidence (line features)").unwrap();
+    assert_eq!((conf.value.as_str(), conf.limit.as_str(), conf.pass), ("0.420", ">= 0.50", Some(false)));
+    assert_eq!(d.runner_up().as_deref(), Some("bracket down: fit 0.810"));
+    // A covered part in a region: the order is the failing measure, its support never tested.
+    let mut m = region();
+    m.order = Order::Under(named("flange", Face::Down));
+    m.region.as_mut().unwrap().support = 0.8;
+    let d = decide(m, limits());
+    assert_eq!(failed_rows(&d), ["lies on top"]);
+    assert!(!d.measures().iter().any(|r| r.name.starts_with("outline explained")));
+}
+
+#[test]
+fn each_verdict_gives_its_reason() {
+    let rival = Rival { name: named("bracket", Face::Up), fit: 0.9, best: 0.91, tolerance: 3.0, support: None, confidence: 0.7 };
+    for (v, r) in [
+        (Verdict::Accept, Reason::Ok),
+        (Verdict::AtBorder { lo: Pt::new(0.0, 0.0), hi: Pt::new(9.0, 9.0) }, Reason::AtBorder),
+        (Verdict::TooLarge { area: 1.0 }, Reason::Touching),
+        (Verdict::NoFit { need: 0.75, merged: false }, Reason::UnknownType),
+        (Verdict::NoFit { need: 0.75, merged: true }, Reason::Touching),
+        (Verdict::Scale { scale: 1.3, range: (0.9, 1.1) }, Reason::UnknownType),
+        (Verdict::Foreign { extra: 0.1, missing: 0.0, limit: 0.06 }, Reason::Touching),
+        (Verdict::Covered { by: named("bracket", Face::Up) }, Reason::Covered),
+        (Verdict::OrderUnclear, Reason::Touching),
+        (Verdict::Unseen { support: 0.8, need: 0.93 }, Reason::Touching),
+        (Verdict::Rival { rival }, Reason::Ambiguous),
+        (Verdict::LowConfidence { confidence: 0.3, threshold: 0.5 }, Reason::LowConfidence),
+        (Verdict::NoClearance { edge_px: 4 }, Reason::NoClearance),
+        (Verdict::Unexplained { area: 5000.0 }, Reason::Touching),
+    ] {
+        assert_eq!(v.reason(), r, "{v:?}");
+        assert_eq!(v.accepts(), r == Reason::Ok, "{v:?}");
+    }
+}
+
+#[test]
+fn the_text_names_the_verdict_first_then_the_evidence() {
+    let mut m = region();
+    m.region = Some(RegionFit { best: named("flange", Face::Down), support: 0.97, coverage: 0.7, rms: 1.2, scale: 1.0 });
+    m.order = Order::Under(named("bracket", Face::Up));
+    m.lines = None;
+    let d = decide(m, limits());
+    assert_eq!(
+        d.to_string(),
+        "bracket up lies on it; found in a region of several parts: flange down outline explained 0.970 (need 0.93), on the region's outline 0.700, rms 1.20 px, scale 1.000"
+    );
+    let far = Verdict::Foreign { extra: 0.2, missing: 0.0, limit: 0.06 };
+    assert!(far.to_string().starts_with("the outline runs onto something else"), "{far}");
+}
