@@ -90,6 +90,17 @@ pub enum Verdict {
         /// Who rivals it, and by how much.
         rival: Rival,
     },
+    /// A type not enrolled, like an enrolled one except in one place: another type or face fits
+    /// as well and where the two differ the part follows neither, or it was told from such a
+    /// sibling and departs from the best elsewhere.
+    Unlike {
+        /// The best template.
+        like: Named,
+        /// The sibling it ties with, and where they differ.
+        rival: Rival,
+        /// Where it departs from the best, when it follows the best where the sibling differs.
+        departure: Option<Departure>,
+    },
     /// The line features agree less than the acceptance threshold.
     LowConfidence {
         /// The line features' agreement.
@@ -124,7 +135,7 @@ impl Verdict {
                     Reason::UnknownType
                 }
             }
-            Verdict::Scale { .. } => Reason::UnknownType,
+            Verdict::Scale { .. } | Verdict::Unlike { .. } => Reason::UnknownType,
             Verdict::Covered { .. } => Reason::Covered,
             Verdict::Rival { .. } => Reason::Ambiguous,
             Verdict::LowConfidence { .. } => Reason::LowConfidence,
@@ -140,7 +151,7 @@ impl Verdict {
     /// Whether the part keeps the type its best fit named: not when no template fits, or only
     /// at a size no part of that type has.
     pub fn names_type(&self) -> bool {
-        !matches!(self, Verdict::NoFit { .. } | Verdict::Scale { .. } | Verdict::Unexplained { .. })
+        !matches!(self, Verdict::NoFit { .. } | Verdict::Scale { .. } | Verdict::Unlike { .. } | Verdict::Unexplained { .. })
     }
 }
 
@@ -170,6 +181,21 @@ impl fmt::Display for Verdict {
             Verdict::Rival { rival } => {
                 write!(f, "{} fits almost as well ({:.3}) and its line features are not clearly worse", rival.name, rival.fit)
             }
+            Verdict::Unlike { like, rival, departure: None } => write!(
+                f,
+                "like {like} and {} except where they differ (at {:.0} deg of {like}): the part follows neither, a type not enrolled",
+                rival.name,
+                rival.local.map(|l| l.at_deg).unwrap_or(0.0)
+            ),
+            Verdict::Unlike { like, rival, departure: Some(d) } => write!(
+                f,
+                "like {like} (not {}) except {:.0} px of outline {:.0} px deep at {:.0} deg, where {}: a type not enrolled",
+                rival.name,
+                d.len,
+                d.depth,
+                d.at_deg,
+                if d.part_lacks { "the part lacks the template's outline" } else { "the part has outline the template lacks" }
+            ),
             Verdict::LowConfidence { confidence, threshold } => write!(f, "confidence {confidence:.3} below {threshold:.2}"),
             Verdict::NoClearance { edge_px } => {
                 write!(f, "{edge_px} edge pixels of other material inside the gripper's keep-out footprint")
@@ -203,6 +229,8 @@ pub struct Rival {
     pub support: Option<(f64, f64)>,
     /// Its line features' confidence at its pose.
     pub confidence: f64,
+    /// Where it and the best differ and what the part does there, when measured.
+    pub local: Option<Local>,
 }
 
 impl Rival {
@@ -211,6 +239,78 @@ impl Rival {
     pub fn ties(&self, l: &Limits) -> bool {
         let within = |rival: f64, best: f64| rival >= best - l.ambiguity_margin;
         within(self.fit, self.best) && self.support.is_none_or(|(rival, best)| within(rival, best))
+    }
+}
+
+/// Where the best template and a rival differ, placed at their poses on the part, and what the
+/// part's outline does there (measured by [`super::differ::compare`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Local {
+    /// Length of the best template's outline farther than `apart` from the rival's, px.
+    pub best_len: f64,
+    /// The fraction of it the part's outline lies on.
+    pub best_follows: f64,
+    /// Length of the rival's outline farther than `apart` from the best's, px.
+    pub rival_len: f64,
+    /// The fraction of it the part's outline lies on.
+    pub rival_follows: f64,
+    /// How far the outlines must be to count as apart, px.
+    pub apart: f64,
+    /// Where the longest stretch lies, degrees around its template's centroid (in the
+    /// template's own frame, so the same for every pose).
+    pub at_deg: f64,
+}
+
+/// The longest stretch where a part departs from its best template (see
+/// [`super::differ::departure`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Departure {
+    /// Its length along the outline, px.
+    pub len: f64,
+    /// How far the outlines are apart there at most, px (capped at the registration's reach).
+    pub depth: f64,
+    /// Where it lies, degrees around the template's centroid in the template's own frame.
+    pub at_deg: f64,
+    /// The template has outline there the part lacks (rather than the part outline the
+    /// template lacks).
+    pub part_lacks: bool,
+}
+
+/// Which template the part follows where two differ.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Follows {
+    /// The best's stretches, not the rival's.
+    Best,
+    /// The rival's, not the best's.
+    Rival,
+    /// Neither's: the part is like both except there, a type not enrolled.
+    Neither,
+    /// The stretches do not tell (none, or the part's outline lies on some of both).
+    Unclear,
+}
+
+impl Local {
+    /// Which template the part follows: most (at least 70 %) of one's stretches and little (at
+    /// most 30 %) of the other's. Where only one template has stretches (a lug too narrow for
+    /// the other's outline to run apart from it), not following it is following the other.
+    pub fn follows(&self) -> Follows {
+        const MOST: f64 = 0.7;
+        const LITTLE: f64 = 0.3;
+        let (b, r) = (self.best_len > 0.0, self.rival_len > 0.0);
+        if !b && !r {
+            return Follows::Unclear;
+        }
+        let best = if b { self.best_follows } else { 1.0 - self.rival_follows };
+        let rival = if r { self.rival_follows } else { 1.0 - self.best_follows };
+        if best >= MOST && rival <= LITTLE {
+            Follows::Best
+        } else if rival >= MOST && best <= LITTLE {
+            Follows::Rival
+        } else if b && r && best <= LITTLE && rival <= LITTLE {
+            Follows::Neither
+        } else {
+            Follows::Unclear
+        }
     }
 }
 
@@ -324,6 +424,9 @@ pub struct Measured {
     pub rival: Option<Rival>,
     /// The line features' agreement at the best pose.
     pub lines: Option<Lines>,
+    /// Where the part departs most from the best template, measured when it was told from a
+    /// tied sibling by where the two differ.
+    pub departure: Option<Departure>,
     /// Edge pixels of other material inside the gripper's keep-out footprint (three or more:
     /// a speck of noise is not an obstacle); `Some(0)` when the footprint is clear or the part
     /// has none.
@@ -349,6 +452,9 @@ pub struct Limits {
     pub accept_threshold: f64,
     /// A region larger than this times the template it resembles holds several parts.
     pub touching_area_ratio: f64,
+    /// A departure from the best template at least this deep (px) makes a part told from a
+    /// sibling a type not enrolled.
+    pub departure_depth: f64,
     /// The largest region one part can make (the largest template at the largest scale, times
     /// `touching_area_ratio`), px^2.
     pub max_area: f64,
@@ -366,6 +472,7 @@ enum Test {
     Order,
     Support,
     Rival,
+    Departure,
     Confidence,
     Clearance,
 }
@@ -419,10 +526,26 @@ fn ladder(m: &Measured, l: &Limits, mut seen: impl FnMut(Test, bool)) -> Option<
     {
         return Some(Verdict::Unseen { support: r.support, need: l.min_support });
     }
-    if let (Some(r), Some(lines)) = (&m.rival, &m.lines)
-        && test(Test::Rival, !r.ties(l) || lines.confidence - r.confidence >= l.confidence_margin)
+    // A rival that ties is told apart where the two differ when the part follows the best
+    // there; a part that follows neither is a type not enrolled, one that follows the rival is
+    // not the best; where they do not tell, the line features must.
+    if let (Some(r), Some(lines)) = (&m.rival, &m.lines) {
+        let follows = r.local.map(|x| x.follows());
+        let pass = !r.ties(l)
+            || follows == Some(Follows::Best)
+            || (matches!(follows, None | Some(Follows::Unclear)) && lines.confidence - r.confidence >= l.confidence_margin);
+        if test(Test::Rival, pass) {
+            return Some(match (follows, best_named(m)) {
+                (Some(Follows::Neither), Some(like)) => Verdict::Unlike { like, rival: r.clone(), departure: None },
+                _ => Verdict::Rival { rival: r.clone() },
+            });
+        }
+    }
+    // Told from a sibling by where they differ, it must follow the best everywhere else too.
+    if let (Some(d), Some(r), Some(like)) = (m.departure, &m.rival, best_named(m))
+        && test(Test::Departure, d.depth < l.departure_depth)
     {
-        return Some(Verdict::Rival { rival: r.clone() });
+        return Some(Verdict::Unlike { like, rival: r.clone(), departure: Some(d) });
     }
     if let Some(lines) = &m.lines
         && test(Test::Confidence, lines.confidence >= l.accept_threshold)
@@ -435,6 +558,11 @@ fn ladder(m: &Measured, l: &Limits, mut seen: impl FnMut(Test, bool)) -> Option<
         return Some(Verdict::NoClearance { edge_px: n });
     }
     None
+}
+
+/// The best template, as the part's fit names it.
+fn best_named(m: &Measured) -> Option<Named> {
+    m.outline.as_ref().map(|o| o.best.clone()).or(m.region.as_ref().map(|r| r.best.clone()))
 }
 
 /// The decision on a part: the first test of the ladder it fails, else acceptance, which needs a
@@ -564,13 +692,30 @@ impl Decision {
                     let lines = m.lines.as_ref().expect("tested");
                     let support = r.support.map(|(s, b)| format!(", support {s:.3} vs {b:.3}")).unwrap_or_default();
                     let ties = r.ties(l);
+                    let follows = r.local.map(|x| x.follows());
                     out.push(Measure::new(
                         format!("rival {}: fit", r.name),
                         format!("{:.3} vs {:.3} at {:.2} px{support}", r.fit, r.best, r.tolerance),
-                        format!("within {:.2}: line features decide", l.ambiguity_margin),
+                        format!("within {:.2}: where they differ, then line features, decide", l.ambiguity_margin),
                         if ties { None } else { pass },
                     ));
-                    if ties {
+                    if let (true, Some(x)) = (ties, r.local) {
+                        let decides = matches!(x.follows(), Follows::Best | Follows::Neither);
+                        out.push(Measure::new(
+                            format!(
+                                "where {} and {} differ, the part follows",
+                                best_named(m).map(|n| n.to_string()).unwrap_or_default(),
+                                r.name
+                            ),
+                            format!(
+                                "{:.2} of {:.0} px vs {:.2} of {:.0} px ({:.0} deg)",
+                                x.best_follows, x.best_len, x.rival_follows, x.rival_len, x.at_deg
+                            ),
+                            "most (>= 0.70) of the best's, little (<= 0.30) of the rival's".into(),
+                            if decides { pass } else { None },
+                        ));
+                    }
+                    if ties && !matches!(follows, Some(Follows::Best | Follows::Neither)) {
                         out.push(Measure::new(
                             format!("confidence lead over {}", r.name),
                             f3(lines.confidence - r.confidence),
@@ -578,6 +723,15 @@ impl Decision {
                             pass,
                         ));
                     }
+                }
+                Test::Departure => {
+                    let d = m.departure.expect("tested");
+                    out.push(Measure::new(
+                        "follows the best everywhere else",
+                        format!("{:.0} px of outline {:.0} px deep at {:.0} deg", d.len, d.depth, d.at_deg),
+                        format!("departures < {:.0} px deep", l.departure_depth),
+                        pass,
+                    ))
                 }
                 Test::Confidence => {
                     let c = m.lines.as_ref().expect("tested").confidence;

@@ -18,6 +18,7 @@ pub mod clump;
 pub mod correlate;
 pub mod decide;
 pub mod detect;
+pub mod differ;
 pub mod fld;
 pub mod frame;
 pub mod geometry;
@@ -34,10 +35,11 @@ pub use lines::{LineDetector, LineFeature, Segment};
 pub use template::{KeepOut, LeftOut, Library, Template, TemplateError};
 
 use boundary::RefineParams;
-use decide::{Bounds, Decision, Measured, Named, NextFit, Order, OutlineFit, RegionFit, Rival};
+use decide::{Bounds, Decision, Follows, Local, Measured, Named, NextFit, Order, OutlineFit, RegionFit, Rival};
 use detect::DetectParams;
 pub use geometry::Similarity;
 use geometry::{area_centroid, bounds};
+use register::OutlineIndex;
 
 /// Which side of the part faces the camera.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -200,6 +202,12 @@ pub struct Params {
     /// Least fraction of a template's outline the image must explain for a part found in a
     /// region of several parts to count as whole (the rest is contact with its neighbour).
     pub min_support: f64,
+    /// A part told from a tied sibling by where the two differ must not depart from the best
+    /// template elsewhere by this much (px, outline apart from outline over a run twice the
+    /// separation that counts as apart): nine times the fit tolerance, deeper than outline noise
+    /// on parts of the right type and than their segmentation's slips, shallower than a design
+    /// revision's change of a few millimetres.
+    pub departure_depth: f64,
     /// Confidence: lambda = lambda0 (1 - alpha noise).
     pub lambda0: f64,
     /// Noise's weight in lambda (the study's 0.5).
@@ -231,6 +239,7 @@ impl Default for Params {
             touching_area_ratio: 1.3,
             debris_fraction: 0.01,
             min_support: 0.93,
+            departure_depth: 18.0,
             lambda0: 25.0,
             alpha: 0.5,
             accept_threshold: 0.5,
@@ -518,6 +527,7 @@ impl Estimator {
             confidence_margin: p.confidence_margin,
             accept_threshold: p.accept_threshold,
             touching_area_ratio: p.touching_area_ratio,
+            departure_depth: p.departure_depth,
             max_area: p.touching_area_ratio * self.max_template_area * (p.scale_range.1 * p.scale_range.1),
         }
     }
@@ -686,6 +696,7 @@ impl Estimator {
             tolerance: tight,
             support: Some((support, f.support)),
             confidence: confidence(&tpl.segments, segments, &reg.pose, diag, lambda),
+            local: None,
         }
     }
 
@@ -726,28 +737,51 @@ impl Estimator {
         let looked = Looked { contrast, noise, segments: Some(all) };
         tm.lines += ms(t);
 
-        // The best template and its pose.
-        let (aligned, cands) = self.candidates(&outline, centroid, noise, tm);
-        let best = &cands[0];
-        let tpl = &self.lib.entries[best.entry].template;
-        let pose = best.reg.pose;
-        est.fit = best.reg.fit();
-        est.scale = pose.scale;
-        est.matched = Some((best.entry, pose));
+        // The best template and its pose: by outline fit, and between templates that fit alike
+        // (revisions of one part), by where they differ.
+        let (aligned, mut cands) = self.candidates(&outline, centroid, noise, tm);
+        let fitted = |est: &mut PartEstimate, best: &Candidate| {
+            est.fit = best.reg.fit();
+            est.scale = best.reg.pose.scale;
+            est.matched = Some((best.entry, best.reg.pose));
+        };
+        fitted(&mut est, &cands[0]);
         m.outline = Some(self.outline_fit(&aligned, &cands));
         if let Some(d) = decide::failed(&m, &limits) {
             est.conclude(d);
             return Ok((est, looked));
         }
+        let t = Instant::now();
+        let lambda = self.lambda(noise, contrast);
+        m.rival = self.rival(&outline, &mut cands, &est.segments, diag, lambda, &limits);
+        tm.confidence += ms(t);
+        if cands[0].entry != est.matched.map_or(usize::MAX, |(e, _)| e) {
+            fitted(&mut est, &cands[0]);
+            m.outline = Some(self.outline_fit(&aligned, &cands));
+            if let Some(d) = decide::failed(&m, &limits) {
+                est.conclude(d);
+                return Ok((est, looked));
+            }
+        }
+        let best = &cands[0];
+        let tpl = &self.lib.entries[best.entry].template;
+        let pose = best.reg.pose;
         // From here on the part has a type, face and pose, accepted or not.
         est.name(tpl, best.entry, pose);
 
-        // The line features at the pose, and those of a rival whose outline ties.
+        // Told from a tied sibling by where the two differ, it must follow the best everywhere
+        // else too.
+        if m.rival.as_ref().is_some_and(|r| r.ties(&limits) && r.local.map(|l| l.follows()) == Some(Follows::Best)) {
+            let near = register::tight_tolerance(best.reg.rms, p.fit_tolerance, best.tolerance);
+            let (apart, min_run) = differ::separation(near);
+            let placed = differ::Placed { index: &self.lib.entries[best.entry].index, pose, centroid: tpl.centroid };
+            m.departure = differ::departure(&OutlineIndex::of_frame(&outline), placed, apart, min_run);
+        }
+
+        // The line features at the pose.
         let t = Instant::now();
-        let lambda = self.lambda(noise, contrast);
         est.confidence = confidence(&tpl.segments, &est.segments, &pose, diag, lambda);
         m.lines = Some(decide::Lines { confidence: est.confidence, noise, contrast, lambda });
-        m.rival = self.rival(&outline, &cands, &est.segments, diag, lambda, &limits);
         tm.confidence += ms(t);
         // The footprint is looked at only for a part nothing else rejects.
         if decide::failed(&m, &limits).is_none() {
@@ -877,42 +911,97 @@ impl Estimator {
             .collect()
     }
 
-    /// The first other type or face (by fit) whose outline ties with the best's at the tight
-    /// tolerance ([`Rival::ties`]), with its line features' confidence at its own pose.
+    /// The other types and faces (by fit) whose outline ties with the best's at the tight
+    /// tolerance ([`Rival::ties`]), each with its candidate's index.
+    fn tied(&self, outline: &[Pt], cands: &[Candidate], limits: &decide::Limits) -> Vec<(usize, Rival)> {
+        let best = &cands[0];
+        let tpl = &self.lib.entries[best.entry].template;
+        let others: Vec<usize> = (1..cands.len())
+            .filter(|&k| {
+                let o = &self.lib.entries[cands[k].entry].template;
+                o.type_name != tpl.type_name || o.face != tpl.face
+            })
+            .collect();
+        if others.is_empty() {
+            return Vec::new();
+        }
+        let tight = register::tight_tolerance(best.reg.rms, self.params.fit_tolerance, best.tolerance);
+        let best_tight = register::measure(outline, &self.lib.entries[best.entry].index, best.reg.pose, tight, 1).fit();
+        others
+            .into_iter()
+            .map(|k| {
+                let e = &self.lib.entries[cands[k].entry];
+                let fit = register::measure(outline, &e.index, cands[k].reg.pose, tight, 4).fit();
+                let rival = Rival {
+                    name: named(&e.template),
+                    fit,
+                    best: best_tight,
+                    tolerance: tight,
+                    support: None,
+                    confidence: 0.0,
+                    local: None,
+                };
+                (k, rival)
+            })
+            .filter(|(_, r)| r.ties(limits))
+            .collect()
+    }
+
+    /// Where candidates `best` and `rival` differ on the part (outline `part`), at the tight
+    /// tolerance `near` ([`differ::separation`]).
+    fn local(&self, part: &OutlineIndex, best: &Candidate, rival: &Candidate, near: f64) -> Local {
+        let placed = |c: &Candidate| {
+            let e = &self.lib.entries[c.entry];
+            differ::Placed { index: &e.index, pose: c.reg.pose, centroid: e.template.centroid }
+        };
+        let (apart, min_run) = differ::separation(near);
+        differ::compare(part, placed(best), placed(rival), near, apart, min_run)
+    }
+
+    /// The closest rival of the best candidate, with where they differ and its line features'
+    /// confidence; None when no other type or face ties with it. Where the part follows a tied
+    /// rival and not the best (a revision sibling fitting the outline as well), the rival is the
+    /// part: it is registered fully and moved first in `cands`, and the ties are looked at again
+    /// from it (at most twice). The rival reported is the first tied one the part does not
+    /// clearly leave behind, else the first.
     fn rival(
         &self,
         outline: &[Pt],
-        cands: &[Candidate],
+        cands: &mut [Candidate],
         found: &[Segment],
         diag: f64,
         lambda: f64,
         limits: &decide::Limits,
     ) -> Option<Rival> {
-        let best = &cands[0];
-        let tpl = &self.lib.entries[best.entry].template;
-        let others: Vec<&Candidate> = cands
-            .iter()
-            .skip(1)
-            .filter(|c| {
-                let o = &self.lib.entries[c.entry].template;
-                o.type_name != tpl.type_name || o.face != tpl.face
-            })
-            .collect();
-        if others.is_empty() {
-            return None;
+        let mut part: Option<OutlineIndex> = None;
+        for round in 0..3 {
+            let tied = self.tied(outline, cands, limits);
+            if tied.is_empty() {
+                return None;
+            }
+            let part = part.get_or_insert_with(|| OutlineIndex::of_frame(outline));
+            let judged: Vec<(usize, Rival)> = tied
+                .into_iter()
+                .map(|(k, mut r)| {
+                    r.local = Some(self.local(part, &cands[0], &cands[k], r.tolerance));
+                    (k, r)
+                })
+                .collect();
+            let follows = |r: &Rival| r.local.map(|l| l.follows());
+            if round < 2
+                && let Some(&(k, _)) = judged.iter().find(|(_, r)| follows(r) == Some(Follows::Rival))
+            {
+                let e = &self.lib.entries[cands[k].entry];
+                cands[k].reg = register::register(outline, &e.index, cands[k].reg.pose, cands[k].tolerance, 1);
+                cands.swap(0, k);
+                continue;
+            }
+            let (k, mut rival) =
+                judged.iter().find(|(_, r)| follows(r) != Some(Follows::Best)).or(judged.first()).cloned().expect("some tied");
+            rival.confidence = confidence(&self.lib.entries[cands[k].entry].template.segments, found, &cands[k].reg.pose, diag, lambda);
+            return Some(rival);
         }
-        let tight = register::tight_tolerance(best.reg.rms, self.params.fit_tolerance, best.tolerance);
-        let best_tight = register::measure(outline, &self.lib.entries[best.entry].index, best.reg.pose, tight, 1).fit();
-        let (c, mut rival) = others
-            .into_iter()
-            .map(|c| {
-                let e = &self.lib.entries[c.entry];
-                let fit = register::measure(outline, &e.index, c.reg.pose, tight, 4).fit();
-                (c, Rival { name: named(&e.template), fit, best: best_tight, tolerance: tight, support: None, confidence: 0.0 })
-            })
-            .find(|(_, r)| r.ties(limits))?;
-        rival.confidence = confidence(&self.lib.entries[c.entry].template.segments, found, &c.reg.pose, diag, lambda);
-        Some(rival)
+        None
     }
 }
 

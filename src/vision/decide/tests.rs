@@ -14,6 +14,7 @@ fn limits() -> Limits {
         confidence_margin: 0.15,
         accept_threshold: 0.5,
         touching_area_ratio: 1.3,
+        departure_depth: 18.0,
         max_area: 200_000.0,
     }
 }
@@ -78,9 +79,10 @@ fn variant(v: &Verdict) -> usize {
         Verdict::LowConfidence { .. } => 10,
         Verdict::NoClearance { .. } => 11,
         Verdict::Unexplained { .. } => 12,
+        Verdict::Unlike { .. } => 13,
     }
 }
-const VERDICTS: usize = 13;
+const VERDICTS: usize = 14;
 
 /// One failed limit: what it does to a passing record, and the verdict and "why" row it gives.
 struct Failure {
@@ -167,7 +169,15 @@ fn failures() -> Vec<Failure> {
             region: true,
             apply: |m| {
                 let support = m.region.as_ref().map(|r| (r.support - 0.02, r.support));
-                m.rival = Some(Rival { name: named("bracket", Face::Down), fit: 0.9, best: 0.95, tolerance: 1.6, support, confidence: 0.7 })
+                m.rival = Some(Rival {
+                    name: named("bracket", Face::Down),
+                    fit: 0.9,
+                    best: 0.95,
+                    tolerance: 1.6,
+                    support,
+                    confidence: 0.7,
+                    local: None,
+                })
             },
             verdict: |v| matches!(v, Verdict::Rival { rival } if rival.name.face == Face::Down),
             row: "confidence lead over bracket down",
@@ -251,6 +261,23 @@ fn every_verdict_is_reached_and_both_paths_agree() {
     let mut unclear = region();
     unclear.order = Order::Unclear;
     reached[variant(&decide(unclear, limits()).verdict)] = true;
+    for (path, base) in [("separate", separate()), ("region", region())] {
+        let mut m = base;
+        m.rival = Some(Rival {
+            name: named("bracket", Face::Down),
+            fit: 0.94,
+            best: 0.95,
+            tolerance: 1.6,
+            support: m.region.as_ref().map(|r| (r.support, r.support)),
+            confidence: 0.2,
+            local: Some(local(0.1, 0.05)),
+        });
+        let d = decide(m, limits());
+        assert!(matches!(&d.verdict, Verdict::Unlike { like, .. } if like.type_name == "bracket"), "{path}: {}", d.verdict);
+        assert_eq!(d.verdict.reason(), Reason::UnknownType);
+        assert_eq!(failed_rows(&d), ["where bracket up and bracket down differ, the part follows"], "{path}");
+        reached[variant(&d.verdict)] = true;
+    }
     let leftover = Measured { unexplained: Some(9000.0), ..Measured::default() };
     let d = decide(leftover, limits());
     assert_eq!(d.verdict, Verdict::Unexplained { area: 9000.0 });
@@ -270,6 +297,69 @@ fn every_verdict_is_reached_and_both_paths_agree() {
         assert_eq!(variant(&a.verdict), variant(&b.verdict), "{}", f.name);
         assert_eq!(a.verdict.reason(), b.verdict.reason(), "{}", f.name);
         assert_eq!(failed_rows(&a), failed_rows(&b), "{}", f.name);
+    }
+}
+
+fn local(best_follows: f64, rival_follows: f64) -> Local {
+    Local { best_len: 120.0, best_follows, rival_len: 60.0, rival_follows, apart: 6.0, at_deg: 212.0 }
+}
+
+/// Where two templates differ decides between them when the part follows one; the line features
+/// decide only when it does not tell; neither followed is a type not enrolled.
+#[test]
+fn where_templates_differ_decides_a_tie() {
+    let tie = |local: Option<Local>, confidence: f64| {
+        let mut m = separate();
+        m.rival =
+            Some(Rival { name: named("bracket", Face::Down), fit: 0.95, best: 0.95, tolerance: 1.6, support: None, confidence, local });
+        decide(m, limits()).verdict
+    };
+    // The part follows the best where they differ: accepted even though the lines tie.
+    assert_eq!(tie(Some(local(0.95, 0.0)), 0.8), Verdict::Accept);
+    // It does not tell: the line features decide, as without the measure.
+    assert!(matches!(tie(Some(local(0.6, 0.5)), 0.8), Verdict::Rival { .. }));
+    assert_eq!(tie(Some(local(0.6, 0.5)), 0.2), Verdict::Accept);
+    assert!(matches!(tie(None, 0.8), Verdict::Rival { .. }));
+    // Neither: unknown type, whatever the line features.
+    assert!(matches!(tie(Some(local(0.1, 0.1)), 0.0), Verdict::Unlike { .. }));
+    // The part follows the rival (the estimator should have named it): never accepted as the best.
+    assert!(matches!(tie(Some(local(0.1, 0.9)), 0.8), Verdict::Rival { .. }));
+    assert!(matches!(tie(Some(local(0.1, 0.9)), 0.2), Verdict::Rival { .. }));
+    // Told from the sibling, it must follow the best everywhere else: a departure as deep as a
+    // revision's change makes it a type not enrolled, one within the outline's noise does not;
+    // the departure is the failing row.
+    let departing = |depth: f64| {
+        let mut m = separate();
+        m.rival = Some(Rival {
+            name: named("bracket", Face::Down),
+            fit: 0.95,
+            best: 0.95,
+            tolerance: 1.6,
+            support: None,
+            confidence: 0.8,
+            local: Some(local(0.95, 0.0)),
+        });
+        m.departure = Some(Departure { len: 90.0, depth, at_deg: 40.0, part_lacks: false });
+        decide(m, limits())
+    };
+    assert_eq!(departing(10.0).verdict, Verdict::Accept);
+    let d = departing(24.0);
+    assert!(matches!(&d.verdict, Verdict::Unlike { departure: Some(x), .. } if x.depth == 24.0), "{}", d.verdict);
+    assert_eq!(d.verdict.reason(), Reason::UnknownType);
+    assert_eq!(failed_rows(&d), ["follows the best everywhere else"]);
+    assert!(d.to_string().starts_with("like bracket up (not bracket down) except 90 px of outline 24 px deep at 40 deg"), "{d}");
+    // Which template it follows: most of one's stretches and little of the other's; one side
+    // without stretches counts as not followed by the other.
+    for (l, f) in [
+        (local(0.95, 0.05), Follows::Best),
+        (local(0.05, 0.95), Follows::Rival),
+        (local(0.1, 0.2), Follows::Neither),
+        (local(0.5, 0.5), Follows::Unclear),
+        (Local { rival_len: 0.0, rival_follows: 0.0, ..local(0.9, 0.0) }, Follows::Best),
+        (Local { rival_len: 0.0, rival_follows: 0.0, ..local(0.1, 0.0) }, Follows::Rival),
+        (Local { best_len: 0.0, rival_len: 0.0, ..local(0.0, 0.0) }, Follows::Unclear),
+    ] {
+        assert_eq!(l.follows(), f, "{l:?}");
     }
 }
 
@@ -310,6 +400,7 @@ fn a_rival_rejects_only_when_it_ties_and_its_lines_are_not_clearly_worse() {
         tolerance: 1.6,
         support,
         confidence,
+        local: None,
     };
     let l = limits();
     assert!(rival(0.86, None, 0.0).ties(&l));
@@ -366,7 +457,8 @@ fn measures_say_which_limit_a_part_failed() {
 
 #[test]
 fn each_verdict_gives_its_reason() {
-    let rival = Rival { name: named("bracket", Face::Up), fit: 0.9, best: 0.91, tolerance: 3.0, support: None, confidence: 0.7 };
+    let rival =
+        Rival { name: named("bracket", Face::Up), fit: 0.9, best: 0.91, tolerance: 3.0, support: None, confidence: 0.7, local: None };
     for (v, r) in [
         (Verdict::Accept, Reason::Ok),
         (Verdict::AtBorder { lo: Pt::new(0.0, 0.0), hi: Pt::new(9.0, 9.0) }, Reason::AtBorder),
