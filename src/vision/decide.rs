@@ -91,14 +91,15 @@ pub enum Verdict {
         rival: Rival,
     },
     /// A type not enrolled, like an enrolled one except in one place: another type or face fits
-    /// as well and where the two differ the part follows neither, or it was told from such a
-    /// sibling and departs from the best elsewhere.
+    /// as well and where the two differ the part follows neither; or it was told from such a
+    /// sibling and departs from the best elsewhere; or, alone in its region, the best explains
+    /// too little of it.
     Unlike {
         /// The best template.
         like: Named,
         /// The sibling it ties with, and where they differ.
-        rival: Rival,
-        /// Where it departs from the best, when it follows the best where the sibling differs.
+        rival: Option<Rival>,
+        /// Where it departs most from the best, when measured.
         departure: Option<Departure>,
     },
     /// The line features agree less than the acceptance threshold.
@@ -143,6 +144,16 @@ impl Verdict {
         }
     }
 
+    /// Whether a region rejected with this verdict may hold several parts (or one whose
+    /// silhouette came out wrong), so that the region search should look at it: not when one
+    /// template explains all of it but one stretch (a type not enrolled).
+    pub fn may_be_several(&self) -> bool {
+        matches!(
+            self,
+            Verdict::AtBorder { .. } | Verdict::TooLarge { .. } | Verdict::NoFit { .. } | Verdict::Scale { .. } | Verdict::Foreign { .. }
+        )
+    }
+
     /// Whether the robot may pick the part.
     pub fn accepts(&self) -> bool {
         matches!(self, Verdict::Accept)
@@ -181,21 +192,30 @@ impl fmt::Display for Verdict {
             Verdict::Rival { rival } => {
                 write!(f, "{} fits almost as well ({:.3}) and its line features are not clearly worse", rival.name, rival.fit)
             }
-            Verdict::Unlike { like, rival, departure: None } => write!(
+            Verdict::Unlike { like, rival: Some(rival), departure: None } => write!(
                 f,
                 "like {like} and {} except where they differ (at {:.0} deg of {like}): the part follows neither, a type not enrolled",
                 rival.name,
                 rival.local.map(|l| l.at_deg).unwrap_or(0.0)
             ),
-            Verdict::Unlike { like, rival, departure: Some(d) } => write!(
-                f,
-                "like {like} (not {}) except {:.0} px of outline {:.0} px deep at {:.0} deg, where {}: a type not enrolled",
-                rival.name,
-                d.len,
-                d.depth,
-                d.at_deg,
-                if d.part_lacks { "the part lacks the template's outline" } else { "the part has outline the template lacks" }
-            ),
+            Verdict::Unlike { like, rival, departure } => {
+                write!(f, "like {like}")?;
+                if let Some(r) = rival {
+                    write!(f, " (not {})", r.name)?;
+                }
+                match departure {
+                    Some(d) => write!(
+                        f,
+                        " except {:.0} px of outline {:.0} px deep at {:.0} deg, where {}",
+                        d.len,
+                        d.depth,
+                        d.at_deg,
+                        if d.part_lacks { "the part lacks the template's outline" } else { "the part has outline the template lacks" }
+                    )?,
+                    None => write!(f, " except where its outline is not explained")?,
+                }
+                f.write_str(": a type not enrolled")
+            }
             Verdict::LowConfidence { confidence, threshold } => write!(f, "confidence {confidence:.3} below {threshold:.2}"),
             Verdict::NoClearance { edge_px } => {
                 write!(f, "{edge_px} edge pixels of other material inside the gripper's keep-out footprint")
@@ -420,12 +440,15 @@ pub struct Measured {
     pub region: Option<RegionFit>,
     /// A part found in a region: whether another lies on it.
     pub order: Order,
+    /// A part found in a region: the only one found there, and no part-sized material beside it.
+    pub alone: bool,
     /// The closest other type or face, when one was measured.
     pub rival: Option<Rival>,
     /// The line features' agreement at the best pose.
     pub lines: Option<Lines>,
     /// Where the part departs most from the best template, measured when it was told from a
-    /// tied sibling by where the two differ.
+    /// tied sibling by where the two differ, or when it is alone in its region and the best
+    /// explains too little of it.
     pub departure: Option<Departure>,
     /// Edge pixels of other material inside the gripper's keep-out footprint (three or more:
     /// a speck of noise is not an obstacle); `Some(0)` when the footprint is clear or the part
@@ -521,10 +544,16 @@ fn ladder(m: &Measured, l: &Limits, mut seen: impl FnMut(Test, bool)) -> Option<
             _ => Verdict::OrderUnclear,
         });
     }
+    // Part of its outline unexplained: something lies on or against it, unless it is alone in
+    // its region: then it is the part that differs.
     if let Some(r) = &m.region
         && test(Test::Support, r.support >= l.min_support)
     {
-        return Some(Verdict::Unseen { support: r.support, need: l.min_support });
+        return Some(if m.alone {
+            Verdict::Unlike { like: r.best.clone(), rival: None, departure: m.departure }
+        } else {
+            Verdict::Unseen { support: r.support, need: l.min_support }
+        });
     }
     // A rival that ties is told apart where the two differ when the part follows the best
     // there; a part that follows neither is a type not enrolled, one that follows the rival is
@@ -536,7 +565,7 @@ fn ladder(m: &Measured, l: &Limits, mut seen: impl FnMut(Test, bool)) -> Option<
             || (matches!(follows, None | Some(Follows::Unclear)) && lines.confidence - r.confidence >= l.confidence_margin);
         if test(Test::Rival, pass) {
             return Some(match (follows, best_named(m)) {
-                (Some(Follows::Neither), Some(like)) => Verdict::Unlike { like, rival: r.clone(), departure: None },
+                (Some(Follows::Neither), Some(like)) => Verdict::Unlike { like, rival: Some(r.clone()), departure: None },
                 _ => Verdict::Rival { rival: r.clone() },
             });
         }
@@ -545,7 +574,7 @@ fn ladder(m: &Measured, l: &Limits, mut seen: impl FnMut(Test, bool)) -> Option<
     if let (Some(d), Some(r), Some(like)) = (m.departure, &m.rival, best_named(m))
         && test(Test::Departure, d.depth < l.departure_depth)
     {
-        return Some(Verdict::Unlike { like, rival: r.clone(), departure: Some(d) });
+        return Some(Verdict::Unlike { like, rival: Some(r.clone()), departure: Some(d) });
     }
     if let Some(lines) = &m.lines
         && test(Test::Confidence, lines.confidence >= l.accept_threshold)

@@ -580,7 +580,7 @@ impl Estimator {
             let (est, looked) = self.estimate_part(frame, &coarse, blob, noise, &mut tm)?;
             // A region one template cannot explain may hold several parts, or one part whose
             // silhouette came out wrong: look for each part in it by its own evidence.
-            if matches!(est.reason, Reason::Touching | Reason::UnknownType | Reason::AtBorder) {
+            if est.decision.verdict.may_be_several() {
                 let t = Instant::now();
                 let found = self.estimate_region(frame, &coarse, blob, &est, looked, &mut tm)?;
                 tm.clump += ms(t);
@@ -663,8 +663,16 @@ impl Estimator {
             },
             rival: f.rival.map(|rival| self.region_rival(seen.outline, f, rival, &segments, diag, lambda)),
             lines: Some(decide::Lines { confidence: est.confidence, noise: seen.noise, contrast: seen.contrast, lambda }),
+            alone: ex.parts.len() == 1 && ex.leftover.iter().all(|&(area, _)| area < self.min_area),
             ..Measured::default()
         };
+        // Alone in its region and not all of it explained: where it departs from the template.
+        if m.alone && f.support < p.min_support {
+            let near = register::tight_tolerance(f.reg.rms, p.fit_tolerance, f.tolerance);
+            let (apart, min_run) = differ::separation(near);
+            let placed = differ::Placed { index: &e.index, pose, centroid: tpl.centroid };
+            m.departure = differ::departure(&OutlineIndex::of_frame(seen.outline), placed, apart, min_run);
+        }
         // The footprint is looked at only for a part nothing else rejects.
         if decide::failed(&m, &limits).is_none() {
             m.blocked = Some(blocked_footprint(seen.coarse, tpl, &pose, &est.outline));

@@ -363,6 +363,31 @@ fn where_templates_differ_decides_a_tie() {
     }
 }
 
+/// A part alone in its region whose outline its best template does not all explain is the part
+/// that differs (a type not enrolled, named by where), not one something lies on; with another
+/// part found beside it, something does.
+#[test]
+fn alone_in_its_region_a_part_not_all_explained_is_a_type_not_enrolled() {
+    let mut m = region();
+    m.region.as_mut().unwrap().support = 0.74;
+    let d = decide(m.clone(), limits());
+    assert_eq!(d.verdict.reason(), Reason::Touching, "{}", d.verdict);
+    m.alone = true;
+    m.departure = Some(Departure { len: 120.0, depth: 24.0, at_deg: 95.0, part_lacks: true });
+    let d = decide(m, limits());
+    assert!(matches!(&d.verdict, Verdict::Unlike { rival: None, departure: Some(_), .. }), "{}", d.verdict);
+    assert_eq!(d.verdict.reason(), Reason::UnknownType);
+    assert!(!d.verdict.names_type());
+    assert_eq!(failed_rows(&d), ["outline explained (bracket up)"]);
+    assert_eq!(
+        d.to_string().split(';').next().unwrap(),
+        "like bracket up except 120 px of outline 24 px deep at 95 deg, where the part lacks the template's outline: a type not enrolled"
+    );
+    // The region search looks again at what may be several parts, not at a type not enrolled.
+    assert!(!d.verdict.may_be_several());
+    assert!(Verdict::NoFit { need: 0.75, merged: true }.may_be_several());
+}
+
 /// A region much larger than the template it resembles is several parts (touching), not an
 /// unknown type.
 #[test]
