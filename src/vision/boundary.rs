@@ -38,6 +38,8 @@ pub struct Refined {
     pub outline: Vec<Pt>,
     /// Typical gray-level step across the outline (median over its points).
     pub contrast: f64,
+    /// The part is brighter than the belt.
+    pub brighter: bool,
 }
 
 /// Refines a closed coarse outline to sub-pixel edge positions.
@@ -45,7 +47,7 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     let pts = resample_closed(coarse, p.spacing);
     let n = pts.len();
     if n < 8 {
-        return Refined { outline: pts, contrast: 0.0 };
+        return Refined { outline: pts, contrast: 0.0, brighter: true };
     }
     // Normals from a smoothed copy: the decimated outline is a staircase.
     let smooth = smooth_closed(&pts, 3);
@@ -150,9 +152,9 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     let outline: Vec<Pt> = (0..n).filter(|&i| offsets[i].is_finite()).map(|i| smooth[i] + normals[i].scale(offsets[i])).collect();
     if outline.len() < n / 2 {
         // Mostly no edge: keep the coarse outline rather than a few scattered points.
-        return Refined { outline: smooth, contrast };
+        return Refined { outline: smooth, contrast, brighter };
     }
-    Refined { outline, contrast }
+    Refined { outline, contrast, brighter }
 }
 
 /// Appends the frame's bilinear samples at `b + n t` for every t (evenly spaced, ascending): as

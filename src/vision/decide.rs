@@ -294,6 +294,9 @@ pub struct Departure {
     /// The template has outline there the part lacks (rather than the part outline the
     /// template lacks).
     pub part_lacks: bool,
+    /// The part has less material there than the template (a notch, a lug cut short), rather
+    /// than more (a lug, or something lying against it).
+    pub less_material: bool,
 }
 
 /// Which template the part follows where two differ.

@@ -9,6 +9,7 @@
 //! there is none). [`super::decide::Local::follows`] reads the answer.
 
 use super::decide::{Departure, Local};
+use super::frame::GrayView;
 use super::geometry::{Pt, Similarity};
 use super::register::{MAX_REACH, OutlineIndex};
 
@@ -120,17 +121,76 @@ fn runs(outline: &[Pt], off: &[bool], min_run: f64) -> Vec<Run> {
     out
 }
 
+/// The frame's word on whether a line separates the part from the belt: the mean gray level a
+/// little inside against a little outside, with the part's polarity.
+#[derive(Clone, Copy)]
+pub struct Light<'a> {
+    frame: GrayView<'a>,
+    sign: f64,
+    least: f64,
+}
+
+impl<'a> Light<'a> {
+    /// The light of a frame whose parts are `brighter` than the belt by `contrast`, with pixel
+    /// noise `noise` (gray levels): a step counts from 30 % of the contrast, and from four times
+    /// the noise of the difference of two means of 15 samples.
+    pub fn new(frame: GrayView<'a>, brighter: bool, contrast: f64, noise: f64) -> Self {
+        let least = (0.3 * contrast).max(4.0 * noise * (2.0f64 / 15.0).sqrt());
+        Self { frame, sign: if brighter { 1.0 } else { -1.0 }, least }
+    }
+
+    fn mean(&self, c: Pt, n: Pt) -> f64 {
+        let t = Pt::new(-n.y, n.x);
+        let mut s = 0.0;
+        for i in -2..=2 {
+            for j in -1..=1 {
+                let q = c + t.scale(2.0 * i as f64) + n.scale(j as f64);
+                s += self.frame.bilinear(q.x, q.y);
+            }
+        }
+        s / 15.0
+    }
+
+    /// Whether the frame steps from part (inside) to belt (outside) across the line through
+    /// `at` with outward unit normal `n`, within `r` of it either way.
+    pub fn shows(&self, at: Pt, n: Pt, r: f64) -> bool {
+        self.sign * (self.mean(at - n.scale(r), n) - self.mean(at + n.scale(r), n)) >= self.least
+    }
+}
+
 /// Where a part departs from its best template (placed on it) by more than `apart`: the longest
 /// run of the template's outline with none of the part's near it (material the part lacks) or of
 /// the part's outline with none of the template's near it (material the template lacks), at
 /// least `min_run` long; None when there is none.
-pub fn departure(part: &OutlineIndex, tpl: Placed<'_>, apart: f64, min_run: f64) -> Option<Departure> {
+///
+/// Judged by `light` where the frame can tell: a place where the part's outline strays from the
+/// template's while the frame still shows the part's edge along the template's outline (a dark
+/// ring of a boss, a shadow in a rounded margin that the outline followed inward) is the
+/// outline gone wrong there, not a departure.
+pub fn departure(part: &OutlineIndex, tpl: Placed<'_>, light: Option<&Light<'_>>, apart: f64, min_run: f64) -> Option<Departure> {
     let to_tpl = tpl.pose.inverse();
     let reach = apart / tpl.pose.scale;
-    let placed: Vec<Pt> = tpl.index.outline().iter().map(|&q| tpl.pose.apply(q)).collect();
-    let missing: Vec<bool> = placed.iter().map(|&q| !part.any_within(q, apart)).collect();
+    let tpl_pts = tpl.index.outline();
+    let placed: Vec<Pt> = tpl_pts.iter().map(|&q| tpl.pose.apply(q)).collect();
+    // The template's outline at its point or segment `i`, in the frame: whether the frame shows
+    // the part's edge there.
+    let edge_at = |at: Pt, i: usize| {
+        light.is_some_and(|l| {
+            let n = tpl.pose.apply(tpl_pts[i] + tpl.index.normal(i)) - tpl.pose.apply(tpl_pts[i]);
+            let n = n.scale(1.0 / n.norm().max(1e-9));
+            l.shows(at, n, 0.5 * apart)
+        })
+    };
+    let missing: Vec<bool> = placed.iter().enumerate().map(|(i, &q)| !part.any_within(q, apart) && !edge_at(q, i)).collect();
     let own = part.outline();
-    let extra: Vec<bool> = own.iter().map(|&q| !tpl.index.any_within(to_tpl.apply(q), reach)).collect();
+    let extra: Vec<bool> = own
+        .iter()
+        .map(|&q| {
+            let qt = to_tpl.apply(q);
+            !tpl.index.any_within(qt, reach)
+                && !tpl.index.nearest(qt, MAX_REACH).is_some_and(|(i, _, foot)| edge_at(tpl.pose.apply(foot), i))
+        })
+        .collect();
     let depth_missing = |q: Pt| part.nearest(q, MAX_REACH).map_or(MAX_REACH, |(_, d, _)| d);
     let depth_extra = |q: Pt| tpl.index.nearest(to_tpl.apply(q), MAX_REACH).map_or(MAX_REACH, |(_, d, _)| d * tpl.pose.scale);
     let longest = |outline: &[Pt], off: &[bool]| runs(outline, off, min_run).into_iter().max_by(|a, b| a.len.total_cmp(&b.len));
@@ -149,7 +209,22 @@ pub fn departure(part: &OutlineIndex, tpl: Placed<'_>, apart: f64, min_run: f64)
     let (outline, depth): (&[Pt], &dyn Fn(Pt) -> f64) = if lacks { (&placed, &depth_missing) } else { (own, &depth_extra) };
     let mid = outline[run.points[run.points.len() / 2]];
     let v = to_tpl.apply(mid) - tpl.centroid;
+    // Less material than the template there: the part's outline runs inside the template's, or
+    // the template's runs outside the part's.
+    let tpl_outline = tpl.index.outline();
+    let less = run
+        .points
+        .iter()
+        .filter(|&&i| {
+            if lacks {
+                !super::geometry::contains(own, outline[i])
+            } else {
+                super::geometry::contains(tpl_outline, to_tpl.apply(outline[i]))
+            }
+        })
+        .count();
     Some(Departure {
+        less_material: 2 * less > run.points.len(),
         len: run.len,
         depth: run.points.iter().map(|&i| depth(outline[i])).fold(0.0, f64::max),
         at_deg: v.y.atan2(v.x).to_degrees().rem_euclid(360.0),
@@ -210,14 +285,47 @@ mod tests {
         let without = OutlineIndex::new(&plate(0.0));
         let at = pose(600.0, 400.0, -52.0);
         let frame = |t: &[Pt]| OutlineIndex::of_frame(&t.iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
-        assert_eq!(departure(&frame(&plate(0.0)), placed(&without, at), 6.0, 12.0), None);
+        assert_eq!(departure(&frame(&plate(0.0)), placed(&without, at), None, 6.0, 12.0), None);
         for lug in [20.0, -20.0] {
-            let d = departure(&frame(&plate(lug)), placed(&without, at), 6.0, 12.0).expect("a departure");
+            let d = departure(&frame(&plate(lug)), placed(&without, at), None, 6.0, 12.0).expect("a departure");
             assert!((d.depth - 20.0).abs() < 1.5, "{lug}: {d:?}");
             assert!(d.len > 25.0 && d.len < 70.0, "{lug}: {d:?}");
             assert!((d.at_deg - 270.0).abs() < 20.0, "{lug}: {d:?}");
         }
         // Shallower than the separation that counts as apart: none.
-        assert_eq!(departure(&frame(&plate(4.0)), placed(&without, at), 6.0, 12.0), None);
+        assert_eq!(departure(&frame(&plate(4.0)), placed(&without, at), None, 6.0, 12.0), None);
+    }
+
+    /// Judged by the frame: a notch the image shows (belt inside the template's outline) is a
+    /// departure; the same outline where the image shows the whole plate (the outline went
+    /// wrong there) is not.
+    #[test]
+    fn the_frame_decides_whether_an_outline_that_strays_departs() {
+        use crate::vision::frame::GrayImage;
+        let at = pose(200.0, 150.0, 0.0);
+        let (w, h) = (400, 300);
+        let image = |notch: bool| {
+            let mut img = GrayImage::new(w, h, 50);
+            for y in 100..200 {
+                for x in 100..300 {
+                    let in_notch = notch && (180..220).contains(&x) && y < 120;
+                    if !in_notch {
+                        img.data[y * w + x] = 180;
+                    }
+                }
+            }
+            img
+        };
+        let without = OutlineIndex::new(&plate(0.0));
+        let part = OutlineIndex::of_frame(&plate(-20.0).iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
+        for (notch, departs) in [(true, true), (false, false)] {
+            let img = image(notch);
+            let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
+            let d = departure(&part, placed(&without, at), Some(&light), 6.0, 12.0);
+            assert_eq!(d.is_some(), departs, "notch in the image {notch}: {d:?}");
+            if let Some(d) = d {
+                assert!(d.less_material, "{d:?}");
+            }
+        }
     }
 }

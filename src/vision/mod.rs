@@ -449,6 +449,8 @@ const GIVE_UP_MARGIN: f64 = 0.15;
 struct Looked {
     /// Part-to-belt contrast along the region's outline, gray levels.
     contrast: f64,
+    /// The part is brighter than the belt.
+    brighter: bool,
     /// The frame's pixel noise, gray levels.
     noise: f64,
     /// The region's line segments down to [`Estimator::least_segment`], when they were found.
@@ -466,6 +468,8 @@ struct Seen<'a> {
     /// The frame's pixel noise and the part-to-belt contrast, gray levels.
     noise: f64,
     contrast: f64,
+    /// The part is brighter than the belt.
+    brighter: bool,
 }
 
 struct Candidate {
@@ -623,7 +627,7 @@ impl Estimator {
             Some(s) => s,
             None => lines::part_segments(p.line_detector, &coarse.small, &coarse.edges, coarse.factor, blob, self.least_segment())?,
         };
-        let seen = Seen { frame, coarse, outline: &whole.outline, segments: &segments, noise, contrast };
+        let seen = Seen { frame, coarse, outline: &whole.outline, segments: &segments, noise, contrast, brighter: looked.brighter };
         let mut out: Vec<PartEstimate> = ex.parts.iter().map(|f| self.region_part(&seen, &ex, f)).collect();
         let mut debris = 0;
         for &(area, c) in &ex.leftover {
@@ -671,7 +675,8 @@ impl Estimator {
             let near = register::tight_tolerance(f.reg.rms, p.fit_tolerance, f.tolerance);
             let (apart, min_run) = differ::separation(near);
             let placed = differ::Placed { index: &e.index, pose, centroid: tpl.centroid };
-            m.departure = differ::departure(&OutlineIndex::of_frame(seen.outline), placed, apart, min_run);
+            let light = differ::Light::new(seen.frame, seen.brighter, seen.contrast, seen.noise);
+            m.departure = differ::departure(&OutlineIndex::of_frame(seen.outline), placed, Some(&light), apart, min_run);
         }
         // The footprint is looked at only for a part nothing else rejects.
         if decide::failed(&m, &limits).is_none() {
@@ -724,7 +729,7 @@ impl Estimator {
         // The outline, refined on the full frame.
         let t = Instant::now();
         let refined = boundary::refine(frame, &blob.outline, noise, &p.refine_params(coarse.factor));
-        let (contrast, outline) = (refined.contrast, refined.outline);
+        let (contrast, brighter, outline) = (refined.contrast, refined.brighter, refined.outline);
         let (area, centroid) = area_centroid(&outline);
         let area = area.abs();
         let mut est = PartEstimate::unnamed(centroid, outline.clone(), decide::decide(Measured::default(), limits));
@@ -734,7 +739,7 @@ impl Estimator {
         let mut m = Measured { border: Some(outline_bounds(&outline, frame)), area: Some(area), ..Measured::default() };
         if let Some(d) = decide::failed(&m, &limits) {
             est.conclude(d);
-            return Ok((est, Looked { contrast, noise, segments: None }));
+            return Ok((est, Looked { contrast, brighter, noise, segments: None }));
         }
 
         // Its line features.
@@ -742,7 +747,7 @@ impl Estimator {
         let (lo, hi) = bounds(&outline);
         let diag = (hi - lo).norm();
         let all = self.line_features(coarse, blob, diag, centroid, &mut est)?;
-        let looked = Looked { contrast, noise, segments: Some(all) };
+        let looked = Looked { contrast, brighter, noise, segments: Some(all) };
         tm.lines += ms(t);
 
         // The best template and its pose: by outline fit, and between templates that fit alike
@@ -783,7 +788,8 @@ impl Estimator {
             let near = register::tight_tolerance(best.reg.rms, p.fit_tolerance, best.tolerance);
             let (apart, min_run) = differ::separation(near);
             let placed = differ::Placed { index: &self.lib.entries[best.entry].index, pose, centroid: tpl.centroid };
-            m.departure = differ::departure(&OutlineIndex::of_frame(&outline), placed, apart, min_run);
+            let light = differ::Light::new(frame, brighter, contrast, noise);
+            m.departure = differ::departure(&OutlineIndex::of_frame(&outline), placed, Some(&light), apart, min_run);
         }
 
         // The line features at the pose.
