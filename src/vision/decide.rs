@@ -289,6 +289,8 @@ pub struct Departure {
     pub len: f64,
     /// How far the outlines are apart there at most, px (capped at the registration's reach).
     pub depth: f64,
+    /// The separation that counts as apart, px.
+    pub apart: f64,
     /// Where it lies, degrees around the template's centroid in the template's own frame.
     pub at_deg: f64,
     /// The template has outline there the part lacks (rather than the part outline the
@@ -478,8 +480,8 @@ pub struct Limits {
     pub accept_threshold: f64,
     /// A region larger than this times the template it resembles holds several parts.
     pub touching_area_ratio: f64,
-    /// A departure from the best template at least this deep (px) makes a part told from a
-    /// sibling a type not enrolled.
+    /// A departure from the best template at least this many times as deep as the separation
+    /// that counts as apart makes a part told from a sibling a type not enrolled.
     pub departure_depth: f64,
     /// The largest region one part can make (the largest template at the largest scale, times
     /// `touching_area_ratio`), px^2.
@@ -575,7 +577,7 @@ fn ladder(m: &Measured, l: &Limits, mut seen: impl FnMut(Test, bool)) -> Option<
     }
     // Told from a sibling by where they differ, it must follow the best everywhere else too.
     if let (Some(d), Some(r), Some(like)) = (m.departure, &m.rival, best_named(m))
-        && test(Test::Departure, d.depth < l.departure_depth)
+        && test(Test::Departure, d.depth < l.departure_depth * d.apart)
     {
         return Some(Verdict::Unlike { like, rival: Some(r.clone()), departure: Some(d) });
     }
@@ -761,7 +763,12 @@ impl Decision {
                     out.push(Measure::new(
                         "follows the best everywhere else",
                         format!("{:.0} px of outline {:.0} px deep at {:.0} deg", d.len, d.depth, d.at_deg),
-                        format!("departures < {:.0} px deep", l.departure_depth),
+                        format!(
+                            "departures < {:.0} px deep ({} x {:.1} px apart)",
+                            l.departure_depth * d.apart,
+                            l.departure_depth,
+                            d.apart
+                        ),
                         pass,
                     ))
                 }

@@ -227,6 +227,7 @@ pub fn departure(part: &OutlineIndex, tpl: Placed<'_>, light: Option<&Light<'_>>
         less_material: 2 * less > run.points.len(),
         len: run.len,
         depth: run.points.iter().map(|&i| depth(outline[i])).fold(0.0, f64::max),
+        apart,
         at_deg: v.y.atan2(v.x).to_degrees().rem_euclid(360.0),
         part_lacks: lacks,
     })

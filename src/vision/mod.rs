@@ -203,10 +203,10 @@ pub struct Params {
     /// region of several parts to count as whole (the rest is contact with its neighbour).
     pub min_support: f64,
     /// A part told from a tied sibling by where the two differ must not depart from the best
-    /// template elsewhere by this much (px, outline apart from outline over a run twice the
-    /// separation that counts as apart): nine times the fit tolerance, deeper than outline noise
-    /// on parts of the right type and than their segmentation's slips, shallower than a design
-    /// revision's change of a few millimetres.
+    /// template elsewhere by this many times the separation that counts as apart (the outlines'
+    /// noise, see `differ::separation`), seen in the frame: twice it, six times the tight
+    /// tolerance, deeper than the outline's noise and shallower than a design revision's change
+    /// of a few millimetres.
     pub departure_depth: f64,
     /// Confidence: lambda = lambda0 (1 - alpha noise).
     pub lambda0: f64,
@@ -239,7 +239,7 @@ impl Default for Params {
             touching_area_ratio: 1.3,
             debris_fraction: 0.01,
             min_support: 0.93,
-            departure_depth: 18.0,
+            departure_depth: 2.0,
             lambda0: 25.0,
             alpha: 0.5,
             accept_threshold: 0.5,

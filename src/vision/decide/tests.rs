@@ -14,7 +14,7 @@ fn limits() -> Limits {
         confidence_margin: 0.15,
         accept_threshold: 0.5,
         touching_area_ratio: 1.3,
-        departure_depth: 18.0,
+        departure_depth: 2.0,
         max_area: 200_000.0,
     }
 }
@@ -339,7 +339,7 @@ fn where_templates_differ_decides_a_tie() {
             confidence: 0.8,
             local: Some(local(0.95, 0.0)),
         });
-        m.departure = Some(Departure { len: 90.0, depth, at_deg: 40.0, part_lacks: false, less_material: false });
+        m.departure = Some(Departure { len: 90.0, depth, apart: 6.0, at_deg: 40.0, part_lacks: false, less_material: false });
         decide(m, limits())
     };
     assert_eq!(departing(10.0).verdict, Verdict::Accept);
@@ -373,7 +373,7 @@ fn alone_in_its_region_a_part_not_all_explained_is_a_type_not_enrolled() {
     let d = decide(m.clone(), limits());
     assert_eq!(d.verdict.reason(), Reason::Touching, "{}", d.verdict);
     m.alone = true;
-    m.departure = Some(Departure { len: 120.0, depth: 24.0, at_deg: 95.0, part_lacks: true, less_material: true });
+    m.departure = Some(Departure { len: 120.0, depth: 24.0, apart: 6.0, at_deg: 95.0, part_lacks: true, less_material: true });
     let d = decide(m, limits());
     assert!(matches!(&d.verdict, Verdict::Unlike { rival: None, departure: Some(_), .. }), "{}", d.verdict);
     assert_eq!(d.verdict.reason(), Reason::UnknownType);
