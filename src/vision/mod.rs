@@ -511,7 +511,13 @@ impl Estimator {
     /// region search and a calibration's re-registration.
     fn tolerance(&self, entry: usize, noise: f64) -> f64 {
         let p = &self.params;
-        p.fit_tolerance + p.fit_tolerance_rel * self.lib.entries[entry].template.rms_radius() + noise / 15.0
+        self.clean_tolerance(noise) + p.fit_tolerance_rel * self.lib.entries[entry].template.rms_radius()
+    }
+
+    /// The part of [`Estimator::tolerance`] that does not grow with the part's size: how far
+    /// (px) an outline at frame noise `noise` strays from its template's on a clean edge.
+    fn clean_tolerance(&self, noise: f64) -> f64 {
+        self.params.fit_tolerance + noise / 15.0
     }
 
     /// The shortest segment any template's part keeps (5 % of the smallest one's diagonal).
@@ -783,10 +789,12 @@ impl Estimator {
         est.name(tpl, best.entry, pose);
 
         // Told from a tied sibling by where the two differ, it must follow the best everywhere
-        // else too.
+        // else too, as closely as an outline of the part at this frame's noise follows its own
+        // template (the fit tolerance and the noise's share of the tolerance, not this
+        // outline's residual: a loose fit must not widen what counts as following, or a
+        // different part that only resembles the best passes).
         if m.rival.as_ref().is_some_and(|r| r.ties(&limits) && r.local.map(|l| l.follows()) == Some(Follows::Best)) {
-            let near = register::tight_tolerance(best.reg.rms, p.fit_tolerance, best.tolerance);
-            let (apart, min_run) = differ::separation(near);
+            let (apart, min_run) = differ::separation(self.clean_tolerance(noise));
             let placed = differ::Placed { index: &self.lib.entries[best.entry].index, pose, centroid: tpl.centroid };
             let light = differ::Light::new(frame, brighter, contrast, noise);
             m.departure = differ::departure(&OutlineIndex::of_frame(&outline), placed, Some(&light), apart, min_run);
