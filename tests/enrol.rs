@@ -123,3 +123,25 @@ fn a_folder_enrols_like_its_templates_one_by_one() {
     assert!(!out.status.success() && stderr.contains("D_up.png"), "{stderr}");
     assert_eq!(read(&folder_kb), before, "a failed folder writes nothing");
 }
+
+/// Enrolling a template that no stretch of outline tells from an enrolled one warns, naming
+/// both; templates unlike any other are enrolled without a word about it.
+#[test]
+fn a_template_no_outline_tells_from_another_is_reported_at_enrolment() {
+    let shared = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/samples/templates");
+    let tmp = tempfile::tempdir().unwrap();
+    let kb = tmp.path().join("kb.toml");
+    let (kb, img) = (kb.to_str().unwrap().to_string(), shared.join("A_up.png").to_str().unwrap().to_string());
+    let out = lfi(&["enroll", "--kb", &kb, "--type", "A", "--id", "1", "--face", "up", &img]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("alike"), "{}", String::from_utf8_lossy(&out.stdout));
+    let other = shared.join("B_up.png").to_str().unwrap().to_string();
+    let out = lfi(&["enroll", "--kb", &kb, "--type", "B", "--id", "2", "--face", "up", &other]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && !stdout.contains("warning"), "{stdout}");
+    // The same part under another name: nothing tells them apart.
+    let out = lfi(&["enroll", "--kb", &kb, "--type", "Acopy", "--id", "3", "--face", "up", &img]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains("warning: A up and Acopy up: no stretch of outline tells them apart"), "{stdout}");
+}

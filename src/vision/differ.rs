@@ -233,6 +233,98 @@ pub fn departure(part: &OutlineIndex, tpl: Placed<'_>, light: Option<&Light<'_>>
     })
 }
 
+/// Two enrolled templates whose outlines are alike overall (revisions of one part, two faces of
+/// a symmetric one), as enrolment reports them: where, if anywhere, a frame can tell them apart.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Alike {
+    /// The two templates (indices into the list compared).
+    pub a: usize,
+    /// See `a`.
+    pub b: usize,
+    /// `b`'s outline registered onto `a`'s: the worse of inliers and coverage.
+    pub fit: f64,
+    /// Length of `a`'s outline apart from `b`'s, and of `b`'s from `a`'s, px (runs long enough
+    /// to tell them apart in a clean frame).
+    pub a_len: f64,
+    /// See `a_len`.
+    pub b_len: f64,
+    /// The largest distance of either outline from the other, px (at most the registration's
+    /// reach).
+    pub largest: f64,
+    /// Where the longest stretch lies, degrees around `a`'s centroid in its own frame.
+    pub at_deg: f64,
+}
+
+impl Alike {
+    /// Whether some stretch of outline tells them apart in a clean frame.
+    pub fn told_apart(&self) -> bool {
+        self.a_len + self.b_len > 0.0
+    }
+}
+
+/// The pairs of templates (of another type or face) whose outlines fit each other at least
+/// `min_fit` at tolerance `near` (px, a clean outline's), and where they differ: by three times
+/// `near` over runs twice that ([`separation`]), the separation the estimator tells siblings
+/// apart by in the cleanest frame. Pairs whose log-polar signals differ by more than 0.1 are
+/// not registered: their outlines differ everywhere.
+pub fn alike(lib: &super::Library, near: f64, min_fit: f64) -> Vec<Alike> {
+    let (apart, min_run) = separation(near);
+    let corr = &lib.correlator;
+    let mut out = Vec::new();
+    for (i, a) in lib.entries.iter().enumerate() {
+        for (j, b) in lib.entries.iter().enumerate().skip(i + 1) {
+            if a.template.type_name == b.template.type_name && a.template.face == b.template.face {
+                continue;
+            }
+            let al = corr.align(&b.spectrum, &a.spectrum);
+            if al.rms > 0.1 {
+                continue;
+            }
+            let init = Similarity {
+                from: a.template.centroid,
+                to: b.template.centroid,
+                angle_rad: (al.shift / corr.bins() as f64) * std::f64::consts::TAU,
+                scale: al.scale,
+            };
+            let reg = super::register::register(&b.template.outline, &a.index, init, near, 1);
+            if reg.fit() < min_fit {
+                continue;
+            }
+            let here = Similarity { from: Pt::new(0.0, 0.0), to: Pt::new(0.0, 0.0), angle_rad: 0.0, scale: 1.0 };
+            let pa = Placed { index: &a.index, pose: reg.pose, centroid: a.template.centroid };
+            let pb = Placed { index: &b.index, pose: here, centroid: b.template.centroid };
+            let (ra, rb) = (apart_of(pa, pb, apart, min_run), apart_of(pb, pa, apart, min_run));
+            // Both placed in `b`'s frame: the longest stretch's middle carried back into `a`'s.
+            let (_, mid) = if ra.1.0 >= rb.1.0 { ra.1 } else { rb.1 };
+            let at_deg = mid.map_or(0.0, |q| {
+                let v = reg.pose.inverse().apply(q) - a.template.centroid;
+                v.y.atan2(v.x).to_degrees().rem_euclid(360.0)
+            });
+            out.push(Alike { a: i, b: j, fit: reg.fit(), a_len: ra.0, b_len: rb.0, largest: ra.2.max(rb.2), at_deg });
+        }
+    }
+    out
+}
+
+/// One outline against another, both placed: the length of its runs apart, the longest run's
+/// length and middle, and its largest distance from the other (px, capped at [`MAX_REACH`]).
+fn apart_of(this: Placed<'_>, other: Placed<'_>, apart: f64, min_run: f64) -> (f64, (f64, Option<Pt>), f64) {
+    let frame: Vec<Pt> = this.index.outline().iter().map(|&q| this.pose.apply(q)).collect();
+    let to_other = other.pose.inverse();
+    let dist = |q: Pt| other.index.nearest(to_other.apply(q), MAX_REACH).map_or(MAX_REACH, |(_, d, _)| d * other.pose.scale);
+    let d: Vec<f64> = frame.iter().map(|&q| dist(q)).collect();
+    let off: Vec<bool> = d.iter().map(|&x| x > apart).collect();
+    let mut len = 0.0;
+    let mut longest = (0.0, None);
+    for run in runs(&frame, &off, min_run) {
+        len += run.len;
+        if run.len > longest.0 {
+            longest = (run.len, Some(frame[run.points[run.points.len() / 2]]));
+        }
+    }
+    (len, longest, d.iter().copied().fold(0.0, f64::max))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -295,6 +387,38 @@ mod tests {
         }
         // Shallower than the separation that counts as apart: none.
         assert_eq!(departure(&frame(&plate(4.0)), placed(&without, at), None, 6.0, 12.0), None);
+    }
+
+    /// Enrolment's report: a plate and its revision with a lug are alike and told apart at the
+    /// lug; the same plate enrolled twice (another name, a pixel's difference) cannot be.
+    #[test]
+    fn templates_alike_are_reported_with_where_they_differ() {
+        use crate::vision::frame::GrayImage;
+        use crate::vision::{Face, Library, Params, Template};
+        let image = |lug: usize| {
+            let (w, h) = (600, 400);
+            let mut img = GrayImage::new(w, h, 50);
+            for y in 100..300 {
+                for x in 100..500 {
+                    let plate = (130..280).contains(&y) && (150..450).contains(&x);
+                    let on_lug = (130 - lug..130).contains(&y) && (280..320).contains(&x);
+                    if plate || on_lug {
+                        img.data[y * w + x] = 180;
+                    }
+                }
+            }
+            img
+        };
+        let params = Params::default();
+        let t = |name: &str, lug: usize| Template::from_image(image(lug).view().unwrap(), name, 1, Face::Up, None, &params).unwrap();
+        let lib = Library::new(&[t("plain", 0), t("lugged", 20), t("twin", 1)], params.signal_bins);
+        let found = alike(&lib, params.fit_tolerance, params.min_fit);
+        let pair = |a: usize, b: usize| found.iter().find(|x| (x.a, x.b) == (a, b)).unwrap_or_else(|| panic!("{a}, {b}: {found:?}"));
+        let (lug, twin) = (pair(0, 1), pair(0, 2));
+        assert!(lug.told_apart() && lug.largest > 20.0, "{lug:?}");
+        // The plate is symmetric under a half turn: the lug is on its top or bottom edge.
+        assert!((lug.at_deg - 270.0).abs() < 25.0 || (lug.at_deg - 90.0).abs() < 25.0, "the lug is on a long edge: {lug:?}");
+        assert!(!twin.told_apart() && twin.largest < 6.0, "{twin:?}");
     }
 
     /// Judged by the frame: a notch the image shows (belt inside the template's outline) is a
