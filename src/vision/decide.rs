@@ -274,6 +274,8 @@ pub struct Local {
     pub rival_len: f64,
     /// The fraction of it the part's outline lies on.
     pub rival_follows: f64,
+    /// Length of the stretches where they differ that a neighbouring part hides in part, px.
+    pub hidden_len: f64,
     /// How far the outlines must be to count as apart, px.
     pub apart: f64,
     /// Where the longest stretch lies, degrees around its template's centroid (in the
@@ -317,12 +319,13 @@ pub enum Follows {
 impl Local {
     /// Which template the part follows: most (at least 70 %) of one's stretches and little (at
     /// most 30 %) of the other's. Where only one template has stretches (a lug too narrow for
-    /// the other's outline to run apart from it), not following it is following the other.
+    /// the other's outline to run apart from it), not following it is following the other. A
+    /// stretch a neighbour hides in part may be the one that tells: then nothing does.
     pub fn follows(&self) -> Follows {
         const MOST: f64 = 0.7;
         const LITTLE: f64 = 0.3;
         let (b, r) = (self.best_len > 0.0, self.rival_len > 0.0);
-        if !b && !r {
+        if (!b && !r) || self.hidden_len > 0.0 {
             return Follows::Unclear;
         }
         let best = if b { self.best_follows } else { 1.0 - self.rival_follows };

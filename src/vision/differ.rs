@@ -37,10 +37,20 @@ pub struct Placed<'a> {
 /// Compares templates `best` and `rival` on a part whose outline is indexed as `part` (frame
 /// pixels): points of either template's outline farther than `apart` from the other's, on runs
 /// at least `min_run` long (frame pixels; shorter ones are the placements' jitter at corners),
-/// and of those the fraction within `near` of the part's outline.
-pub fn compare(part: &OutlineIndex, best: Placed<'_>, rival: Placed<'_>, near: f64, apart: f64, min_run: f64) -> Local {
-    let b = stretches(part, best, rival, near, apart, min_run);
-    let r = stretches(part, rival, best, near, apart, min_run);
+/// and of those the fraction within `near` of the part's outline. Points where `excused` holds
+/// (frame pixels: against or under a neighbouring part, where the part's own outline is not
+/// seen) tell nothing: a stretch with any such point is left out, counted as hidden.
+pub fn compare(
+    part: &OutlineIndex,
+    best: Placed<'_>,
+    rival: Placed<'_>,
+    excused: &dyn Fn(Pt) -> bool,
+    near: f64,
+    apart: f64,
+    min_run: f64,
+) -> Local {
+    let b = stretches(part, best, rival, excused, near, apart, min_run);
+    let r = stretches(part, rival, best, excused, near, apart, min_run);
     let longest = if b.longest.0 >= r.longest.0 { (b.longest, best) } else { (r.longest, rival) };
     let ((_, mid), on) = longest;
     let at = mid.map(|q| {
@@ -52,6 +62,7 @@ pub fn compare(part: &OutlineIndex, best: Placed<'_>, rival: Placed<'_>, near: f
         best_follows: if b.len > 0.0 { b.followed / b.len } else { 0.0 },
         rival_len: r.len,
         rival_follows: if r.len > 0.0 { r.followed / r.len } else { 0.0 },
+        hidden_len: b.hidden + r.hidden,
         apart,
         at_deg: at.unwrap_or(0.0),
     }
@@ -63,17 +74,32 @@ struct Stretches {
     len: f64,
     /// Of it, the length the part's outline follows.
     followed: f64,
+    /// Length of the stretches not counted because the part's outline is not seen along all
+    /// of them.
+    hidden: f64,
     /// The longest: its length and middle point (frame pixels).
     longest: (f64, Option<Pt>),
 }
 
-fn stretches(part: &OutlineIndex, this: Placed<'_>, other: Placed<'_>, near: f64, apart: f64, min_run: f64) -> Stretches {
+fn stretches(
+    part: &OutlineIndex,
+    this: Placed<'_>,
+    other: Placed<'_>,
+    excused: &dyn Fn(Pt) -> bool,
+    near: f64,
+    apart: f64,
+    min_run: f64,
+) -> Stretches {
     let frame: Vec<Pt> = this.index.outline().iter().map(|&q| this.pose.apply(q)).collect();
     let to_other = other.pose.inverse();
     let reach = apart / other.pose.scale;
     let off: Vec<bool> = frame.iter().map(|&q| !other.index.any_within(to_other.apply(q), reach)).collect();
-    let mut out = Stretches { len: 0.0, followed: 0.0, longest: (0.0, None) };
+    let mut out = Stretches { len: 0.0, followed: 0.0, hidden: 0.0, longest: (0.0, None) };
     for run in runs(&frame, &off, min_run) {
+        if run.points.iter().any(|&i| excused(frame[i])) {
+            out.hidden += run.len;
+            continue;
+        }
         out.len += run.len;
         out.followed += run.points.iter().filter(|&&i| part.any_within(frame[i], near)).map(|&i| run.step(&frame, i)).sum::<f64>();
         if run.len > out.longest.0 {
@@ -166,8 +192,20 @@ impl<'a> Light<'a> {
 /// Judged by `light` where the frame can tell: a place where the part's outline strays from the
 /// template's while the frame still shows the part's edge along the template's outline (a dark
 /// ring of a boss, a shadow in a rounded margin that the outline followed inward) is the
-/// outline gone wrong there, not a departure.
-pub fn departure(part: &OutlineIndex, tpl: Placed<'_>, light: Option<&Light<'_>>, apart: f64, min_run: f64) -> Option<Departure> {
+/// outline gone wrong there, not a departure. Points where `excused` holds (frame pixels: against
+/// or under a neighbouring part, where the part's own outline is not seen) are not judged, nor,
+/// unless `beyond`, the part's outline outside the template's (a region's outline runs around
+/// whatever else lies in it; material the template lacks shows anyway as the template's outline
+/// running where the frame shows no edge).
+pub fn departure(
+    part: &OutlineIndex,
+    tpl: Placed<'_>,
+    light: Option<&Light<'_>>,
+    excused: &dyn Fn(Pt) -> bool,
+    beyond: bool,
+    apart: f64,
+    min_run: f64,
+) -> Option<Departure> {
     let to_tpl = tpl.pose.inverse();
     let reach = apart / tpl.pose.scale;
     let tpl_pts = tpl.index.outline();
@@ -181,13 +219,15 @@ pub fn departure(part: &OutlineIndex, tpl: Placed<'_>, light: Option<&Light<'_>>
             l.shows(at, n, 0.5 * apart)
         })
     };
-    let missing: Vec<bool> = placed.iter().enumerate().map(|(i, &q)| !part.any_within(q, apart) && !edge_at(q, i)).collect();
+    let missing: Vec<bool> = placed.iter().enumerate().map(|(i, &q)| !part.any_within(q, apart) && !edge_at(q, i) && !excused(q)).collect();
     let own = part.outline();
     let extra: Vec<bool> = own
         .iter()
         .map(|&q| {
             let qt = to_tpl.apply(q);
             !tpl.index.any_within(qt, reach)
+                && !excused(q)
+                && (beyond || super::geometry::contains(tpl_pts, qt))
                 && !tpl.index.nearest(qt, MAX_REACH).is_some_and(|(i, _, foot)| edge_at(tpl.pose.apply(foot), i))
         })
         .collect();
@@ -357,7 +397,9 @@ mod tests {
         let (with, without) = (OutlineIndex::new(&plate(25.0)), OutlineIndex::new(&plate(0.0)));
         let at = pose(600.0, 400.0, 37.0);
         let frame = |t: &[Pt]| OutlineIndex::of_frame(&t.iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
-        let cmp = |part: &OutlineIndex, a: &OutlineIndex, b: &OutlineIndex| compare(part, placed(a, at), placed(b, at), 2.0, 6.0, 12.0);
+        let cmp = |part: &OutlineIndex, a: &OutlineIndex, b: &OutlineIndex| {
+            compare(part, placed(a, at), placed(b, at), &|_| false, 2.0, 6.0, 12.0)
+        };
 
         let l = cmp(&frame(&plate(25.0)), &with, &without);
         assert_eq!(l.follows(), Follows::Best, "{l:?}");
@@ -378,15 +420,15 @@ mod tests {
         let without = OutlineIndex::new(&plate(0.0));
         let at = pose(600.0, 400.0, -52.0);
         let frame = |t: &[Pt]| OutlineIndex::of_frame(&t.iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
-        assert_eq!(departure(&frame(&plate(0.0)), placed(&without, at), None, 6.0, 12.0), None);
+        assert_eq!(departure(&frame(&plate(0.0)), placed(&without, at), None, &|_| false, true, 6.0, 12.0), None);
         for lug in [20.0, -20.0] {
-            let d = departure(&frame(&plate(lug)), placed(&without, at), None, 6.0, 12.0).expect("a departure");
+            let d = departure(&frame(&plate(lug)), placed(&without, at), None, &|_| false, true, 6.0, 12.0).expect("a departure");
             assert!((d.depth - 20.0).abs() < 1.5, "{lug}: {d:?}");
             assert!(d.len > 25.0 && d.len < 70.0, "{lug}: {d:?}");
             assert!((d.at_deg - 270.0).abs() < 20.0, "{lug}: {d:?}");
         }
         // Shallower than the separation that counts as apart: none.
-        assert_eq!(departure(&frame(&plate(4.0)), placed(&without, at), None, 6.0, 12.0), None);
+        assert_eq!(departure(&frame(&plate(4.0)), placed(&without, at), None, &|_| false, true, 6.0, 12.0), None);
     }
 
     /// Enrolment's report: a plate and its revision with a lug are alike and told apart at the
@@ -446,7 +488,7 @@ mod tests {
         for (notch, departs) in [(true, true), (false, false)] {
             let img = image(notch);
             let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
-            let d = departure(&part, placed(&without, at), Some(&light), 6.0, 12.0);
+            let d = departure(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
             assert_eq!(d.is_some(), departs, "notch in the image {notch}: {d:?}");
             if let Some(d) = d {
                 assert!(d.less_material, "{d:?}");

@@ -461,8 +461,9 @@ struct Looked {
 struct Seen<'a> {
     frame: GrayView<'a>,
     coarse: &'a detect::Coarse,
-    /// The region's refined outline, frame pixels.
+    /// The region's refined outline, frame pixels, and its index.
     outline: &'a [Pt],
+    outline_index: &'a OutlineIndex,
     /// The region's line segments down to [`Estimator::least_segment`].
     segments: &'a [Segment],
     /// The frame's pixel noise and the part-to-belt contrast, gray levels.
@@ -470,6 +471,19 @@ struct Seen<'a> {
     contrast: f64,
     /// The part is brighter than the belt.
     brighter: bool,
+    /// Frame points where the part's own outline is not seen (against or under another part
+    /// found in the region): nothing is judged there.
+    excused: &'a dyn Fn(Pt) -> bool,
+}
+
+/// One template explaining a part found in a region: its registration, the image's support for
+/// it and its outline tolerance.
+#[derive(Clone, Copy)]
+struct Explanation {
+    entry: usize,
+    reg: register::Registration,
+    support: f64,
+    tolerance: f64,
 }
 
 struct Candidate {
@@ -633,7 +647,18 @@ impl Estimator {
             Some(s) => s,
             None => lines::part_segments(p.line_detector, &coarse.small, &coarse.edges, coarse.factor, blob, self.least_segment())?,
         };
-        let seen = Seen { frame, coarse, outline: &whole.outline, segments: &segments, noise, contrast, brighter: looked.brighter };
+        let outline_index = OutlineIndex::of_frame(&whole.outline);
+        let seen = Seen {
+            frame,
+            coarse,
+            outline: &whole.outline,
+            outline_index: &outline_index,
+            segments: &segments,
+            noise,
+            contrast,
+            brighter: looked.brighter,
+            excused: &|_| false,
+        };
         let mut out: Vec<PartEstimate> = ex.parts.iter().map(|f| self.region_part(&seen, &ex, f)).collect();
         let mut debris = 0;
         for &(area, c) in &ex.leftover {
@@ -650,39 +675,86 @@ impl Estimator {
     /// One part the region search found: named at its pose, measured, decided.
     fn region_part(&self, seen: &Seen<'_>, ex: &clump::Explained, f: &clump::Found) -> PartEstimate {
         let p = &self.params;
-        let e = &self.lib.entries[f.entry];
-        let tpl = &e.template;
-        let pose = f.reg.pose;
-        let to_frame = pose.forward();
         let limits = self.limits();
+        let lambda = self.lambda(seen.noise, seen.contrast);
+        // Of the two explanations the search found for this material (another type or face
+        // nearly as well supported), the one the part follows where their templates differ.
+        // Where another part found here lies against or over it, its own outline is not seen:
+        // neither compared nor judged there.
+        let others: Vec<(OutlineIndex, Vec<Pt>)> = ex
+            .parts
+            .iter()
+            .filter(|o| !std::ptr::eq(*o, f))
+            .map(|o| {
+                let at = o.reg.pose.forward();
+                let outline: Vec<Pt> = self.lib.entries[o.entry].template.outline.iter().map(|&q| at.apply(q)).collect();
+                (OutlineIndex::of_frame(&outline), outline)
+            })
+            .collect();
+        let reach = 3.0 * self.clean_tolerance(seen.noise);
+        let excused = |q: Pt| others.iter().any(|(index, outline)| index.any_within(q, reach) || geometry::contains(outline, q));
+        let seen = &Seen { excused: &excused, ..*seen };
+        let first = Explanation { entry: f.entry, reg: f.reg, support: f.support, tolerance: f.tolerance };
+        let second = f.rival.map(|(entry, reg, support)| Explanation { entry, reg, support, tolerance: self.tolerance(entry, seen.noise) });
+        let (best, other) = match second {
+            Some(s) => {
+                let r = self.region_rival(seen, &first, &s, &[], 1.0, lambda);
+                if r.ties(&limits) && r.local.map(|l| l.follows()) == Some(Follows::Rival) { (s, Some(first)) } else { (first, Some(s)) }
+            }
+            None => (first, None),
+        };
+        let e = &self.lib.entries[best.entry];
+        let tpl = &e.template;
+        let pose = best.reg.pose;
+        let to_frame = pose.forward();
         let placed = tpl.outline.iter().map(|&q| to_frame.apply(q)).collect();
         let mut est = PartEstimate::unnamed(Pt::new(0.0, 0.0), placed, decide::decide(Measured::default(), limits));
-        est.name(tpl, f.entry, pose);
-        est.fit = f.support;
+        est.name(tpl, best.entry, pose);
+        est.fit = best.support;
         let diag = e.diag * pose.scale;
         let segments: Vec<Segment> = seen.segments.iter().filter(|s| s.len() >= p.min_segment_fraction * diag).copied().collect();
-        let lambda = self.lambda(seen.noise, seen.contrast);
         est.confidence = confidence(&tpl.segments, &segments, &pose, diag, lambda);
         let mut m = Measured {
             border: Some(outline_bounds(&est.outline, seen.frame)),
-            region: Some(RegionFit { best: named(tpl), support: f.support, coverage: f.reg.coverage, rms: f.reg.rms, scale: pose.scale }),
+            region: Some(RegionFit {
+                best: named(tpl),
+                support: best.support,
+                coverage: best.reg.coverage,
+                rms: best.reg.rms,
+                scale: pose.scale,
+            }),
             order: match (f.under, f.order_unclear) {
                 (Some(k), _) => Order::Under(named(&self.lib.entries[ex.parts[k].entry].template)),
                 (None, true) => Order::Unclear,
                 (None, false) => Order::Free,
             },
-            rival: f.rival.map(|rival| self.region_rival(seen.outline, f, rival, &segments, diag, lambda)),
+            rival: other.map(|o| self.region_rival(seen, &best, &o, &segments, diag, lambda)),
             lines: Some(decide::Lines { confidence: est.confidence, noise: seen.noise, contrast: seen.contrast, lambda }),
             alone: ex.parts.len() == 1 && ex.leftover.iter().all(|&(area, _)| area < self.min_area),
             ..Measured::default()
         };
-        // Alone in its region and not all of it explained: where it departs from the template.
-        if m.alone && f.support < p.min_support {
-            let near = register::tight_tolerance(f.reg.rms, p.fit_tolerance, f.tolerance);
+        // Where it departs from its template: alone in its region and not all of it explained,
+        // or told from a sibling (which it must follow everywhere else, as closely as a clean
+        // outline at this noise; see `estimate_part`).
+        let sibling = m.rival.as_ref().is_some_and(|r| r.ties(&limits) && r.local.map(|l| l.follows()) == Some(Follows::Best));
+        if (m.alone && best.support < p.min_support) || sibling {
+            let near = if sibling {
+                self.clean_tolerance(seen.noise)
+            } else {
+                register::tight_tolerance(best.reg.rms, p.fit_tolerance, best.tolerance)
+            };
             let (apart, min_run) = differ::separation(near);
             let placed = differ::Placed { index: &e.index, pose, centroid: tpl.centroid };
             let light = differ::Light::new(seen.frame, seen.brighter, seen.contrast, seen.noise);
-            m.departure = differ::departure(&OutlineIndex::of_frame(seen.outline), placed, Some(&light), apart, min_run);
+            m.departure = differ::departure(seen.outline_index, placed, Some(&light), seen.excused, false, apart, min_run);
+            // In a region, where the outline leaves the best template may be a neighbour's doing
+            // as well as the part's: the region's outline is then no clean view of the part, and
+            // the stretches where the siblings differ do not tell (the line features decide, as
+            // they did before siblings were compared).
+            if let (true, Some(d), Some(local)) = (sibling, m.departure, m.rival.as_mut().and_then(|r| r.local.as_mut())) {
+                local.hidden_len += d.len;
+                m.departure = None;
+            }
         }
         // The footprint is looked at only for a part nothing else rejects.
         if decide::failed(&m, &limits).is_none() {
@@ -692,30 +764,36 @@ impl Estimator {
         est
     }
 
-    /// The other type or face the region search found explaining the same material as `f`,
-    /// held against it by the image's support for each and, at the tight tolerance, by how
-    /// much of each template's outline the region's outline covers; with its line features'
-    /// confidence at its own pose.
+    /// `other`, another type or face the region search found explaining the same material as
+    /// `best`, held against it: by the image's support for each; at the tight tolerance, by how
+    /// much of each template's outline the region's outline covers; by where the two templates
+    /// differ ([`differ::compare`] on the region's outline); with its line features' confidence
+    /// at its own pose against `segments` (none given: not needed, 0).
     fn region_rival(
         &self,
-        outline: &[Pt],
-        f: &clump::Found,
-        (entry, reg, support): (usize, register::Registration, f64),
+        seen: &Seen<'_>,
+        best: &Explanation,
+        other: &Explanation,
         segments: &[Segment],
         diag: f64,
         lambda: f64,
     ) -> Rival {
-        let tight = register::tight_tolerance(f.reg.rms, self.params.fit_tolerance, f.tolerance);
-        let coverage = |entry: usize, pose| register::measure(outline, &self.lib.entries[entry].index, pose, tight, 1).coverage;
-        let tpl = &self.lib.entries[entry].template;
+        let tight = register::tight_tolerance(best.reg.rms, self.params.fit_tolerance, best.tolerance);
+        let coverage = |entry: usize, pose| register::measure(seen.outline, &self.lib.entries[entry].index, pose, tight, 1).coverage;
+        let placed = |x: &Explanation| {
+            let e = &self.lib.entries[x.entry];
+            differ::Placed { index: &e.index, pose: x.reg.pose, centroid: e.template.centroid }
+        };
+        let (apart, min_run) = differ::separation(tight);
+        let tpl = &self.lib.entries[other.entry].template;
         Rival {
             name: named(tpl),
-            fit: coverage(entry, reg.pose),
-            best: coverage(f.entry, f.reg.pose),
+            fit: coverage(other.entry, other.reg.pose),
+            best: coverage(best.entry, best.reg.pose),
             tolerance: tight,
-            support: Some((support, f.support)),
-            confidence: confidence(&tpl.segments, segments, &reg.pose, diag, lambda),
-            local: None,
+            support: Some((other.support, best.support)),
+            confidence: if segments.is_empty() { 0.0 } else { confidence(&tpl.segments, segments, &other.reg.pose, diag, lambda) },
+            local: Some(differ::compare(seen.outline_index, placed(best), placed(other), seen.excused, tight, apart, min_run)),
         }
     }
 
@@ -797,7 +875,7 @@ impl Estimator {
             let (apart, min_run) = differ::separation(self.clean_tolerance(noise));
             let placed = differ::Placed { index: &self.lib.entries[best.entry].index, pose, centroid: tpl.centroid };
             let light = differ::Light::new(frame, brighter, contrast, noise);
-            m.departure = differ::departure(&OutlineIndex::of_frame(&outline), placed, Some(&light), apart, min_run);
+            m.departure = differ::departure(&OutlineIndex::of_frame(&outline), placed, Some(&light), &|_| false, true, apart, min_run);
         }
 
         // The line features at the pose.
@@ -977,7 +1055,7 @@ impl Estimator {
             differ::Placed { index: &e.index, pose: c.reg.pose, centroid: e.template.centroid }
         };
         let (apart, min_run) = differ::separation(near);
-        differ::compare(part, placed(best), placed(rival), near, apart, min_run)
+        differ::compare(part, placed(best), placed(rival), &|_| false, near, apart, min_run)
     }
 
     /// The closest rival of the best candidate, with where they differ and its line features'

@@ -301,7 +301,7 @@ fn every_verdict_is_reached_and_both_paths_agree() {
 }
 
 fn local(best_follows: f64, rival_follows: f64) -> Local {
-    Local { best_len: 120.0, best_follows, rival_len: 60.0, rival_follows, apart: 6.0, at_deg: 212.0 }
+    Local { best_len: 120.0, best_follows, rival_len: 60.0, rival_follows, hidden_len: 0.0, apart: 6.0, at_deg: 212.0 }
 }
 
 /// Where two templates differ decides between them when the part follows one; the line features
@@ -358,6 +358,7 @@ fn where_templates_differ_decides_a_tie() {
         (Local { rival_len: 0.0, rival_follows: 0.0, ..local(0.9, 0.0) }, Follows::Best),
         (Local { rival_len: 0.0, rival_follows: 0.0, ..local(0.1, 0.0) }, Follows::Rival),
         (Local { best_len: 0.0, rival_len: 0.0, ..local(0.0, 0.0) }, Follows::Unclear),
+        (Local { hidden_len: 30.0, ..local(0.95, 0.05) }, Follows::Unclear),
     ] {
         assert_eq!(l.follows(), f, "{l:?}");
     }
