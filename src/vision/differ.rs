@@ -409,6 +409,11 @@ mod tests {
         assert_eq!(l.follows(), Follows::Rival, "{l:?}");
         let l = cmp(&frame(&plate(-20.0)), &with, &without);
         assert_eq!(l.follows(), Follows::Neither, "{l:?}");
+        // A neighbour against the lug hides a stretch: nothing tells.
+        let lug_top = at.apply(Pt::new(100.0, -25.0));
+        let hidden =
+            compare(&frame(&plate(25.0)), placed(&with, at), placed(&without, at), &|q: Pt| (q - lug_top).norm() < 10.0, 2.0, 6.0, 12.0);
+        assert!(hidden.hidden_len > 0.0 && hidden.follows() == Follows::Unclear, "{hidden:?}");
         let l = cmp(&frame(&plate(25.0)), &with, &with);
         assert_eq!((l.best_len, l.rival_len, l.follows()), (0.0, 0.0, Follows::Unclear), "{l:?}");
     }
