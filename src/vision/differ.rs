@@ -34,6 +34,15 @@ pub struct Placed<'a> {
     pub centroid: Pt,
 }
 
+impl Placed<'_> {
+    /// Where frame point `q` lies around the template's centroid, degrees in the template's own
+    /// frame (the same for every pose): how a stretch is named to the operator.
+    pub fn angle_at(&self, q: Pt) -> f64 {
+        let v = self.pose.inverse().apply(q) - self.centroid;
+        v.y.atan2(v.x).to_degrees().rem_euclid(360.0)
+    }
+}
+
 /// Compares templates `best` and `rival` on a part whose outline is indexed as `part` (frame
 /// pixels): points of either template's outline farther than `apart` from the other's, on runs
 /// at least `min_run` long (frame pixels; shorter ones are the placements' jitter at corners),
@@ -51,12 +60,8 @@ pub fn compare(
 ) -> Local {
     let b = stretches(part, best, rival, excused, near, apart, min_run);
     let r = stretches(part, rival, best, excused, near, apart, min_run);
-    let longest = if b.longest.0 >= r.longest.0 { (b.longest, best) } else { (r.longest, rival) };
-    let ((_, mid), on) = longest;
-    let at = mid.map(|q| {
-        let v = on.pose.inverse().apply(q) - on.centroid;
-        v.y.atan2(v.x).to_degrees().rem_euclid(360.0)
-    });
+    let ((_, mid), on) = if b.longest.0 >= r.longest.0 { (b.longest, best) } else { (r.longest, rival) };
+    let at = mid.map(|q| on.angle_at(q));
     Local {
         best_len: b.len,
         best_follows: if b.len > 0.0 { b.followed / b.len } else { 0.0 },
@@ -248,7 +253,6 @@ pub fn departure(
     };
     let (outline, depth): (&[Pt], &dyn Fn(Pt) -> f64) = if lacks { (&placed, &depth_missing) } else { (own, &depth_extra) };
     let mid = outline[run.points[run.points.len() / 2]];
-    let v = to_tpl.apply(mid) - tpl.centroid;
     // Less material than the template there: the part's outline runs inside the template's, or
     // the template's runs outside the part's.
     let tpl_outline = tpl.index.outline();
@@ -268,7 +272,7 @@ pub fn departure(
         len: run.len,
         depth: run.points.iter().map(|&i| depth(outline[i])).fold(0.0, f64::max),
         apart,
-        at_deg: v.y.atan2(v.x).to_degrees().rem_euclid(360.0),
+        at_deg: tpl.angle_at(mid),
         part_lacks: lacks,
     })
 }
@@ -336,10 +340,7 @@ pub fn alike(lib: &super::Library, near: f64, min_fit: f64) -> Vec<Alike> {
             let (ra, rb) = (apart_of(pa, pb, apart, min_run), apart_of(pb, pa, apart, min_run));
             // Both placed in `b`'s frame: the longest stretch's middle carried back into `a`'s.
             let (_, mid) = if ra.1.0 >= rb.1.0 { ra.1 } else { rb.1 };
-            let at_deg = mid.map_or(0.0, |q| {
-                let v = reg.pose.inverse().apply(q) - a.template.centroid;
-                v.y.atan2(v.x).to_degrees().rem_euclid(360.0)
-            });
+            let at_deg = mid.map_or(0.0, |q| pa.angle_at(q));
             out.push(Alike { a: i, b: j, fit: reg.fit(), a_len: ra.0, b_len: rb.0, largest: ra.2.max(rb.2), at_deg });
         }
     }
