@@ -190,7 +190,26 @@ impl fmt::Display for Verdict {
                 )
             }
             Verdict::Rival { rival } => {
-                write!(f, "{} fits almost as well ({:.3}) and its line features are not clearly worse", rival.name, rival.fit)
+                write!(f, "{} fits almost as well ({:.3}) and its line features are not clearly worse", rival.name, rival.fit)?;
+                match rival.local {
+                    Some(l) if l.best_len == 0.0 && l.rival_len == 0.0 && l.hidden_len == 0.0 => {
+                        write!(f, "; their outlines are nowhere {:.1} px apart", l.apart)
+                    }
+                    Some(l) => write!(
+                        f,
+                        "; where they differ by {:.1} px or more, the part follows {:.0} % of the best's {:.0} px and {:.0} % of the rival's {:.0} px",
+                        l.apart,
+                        100.0 * l.best_follows,
+                        l.best_len,
+                        100.0 * l.rival_follows,
+                        l.rival_len
+                    )
+                    .and_then(|()| match l.hidden_len > 0.0 {
+                        true => write!(f, " ({:.0} px more are hidden by a neighbour)", l.hidden_len),
+                        false => Ok(()),
+                    }),
+                    None => Ok(()),
+                }
             }
             Verdict::Unlike { like, rival: Some(rival), departure: None } => write!(
                 f,
@@ -319,13 +338,28 @@ pub enum Follows {
 impl Local {
     /// Which template the part follows: most (at least 70 %) of one's stretches and little (at
     /// most 30 %) of the other's. Where only one template has stretches (a lug too narrow for
-    /// the other's outline to run apart from it), not following it is following the other. A
-    /// stretch a neighbour hides in part may be the one that tells: then nothing does.
+    /// the other's outline to run apart from it), not following it is following the other.
+    ///
+    /// A stretch a neighbour hides in part may be the one that tells, so with one hidden only
+    /// what is seen to be followed counts: the part lies on most of one template's stretches in
+    /// view and little of the other's. Not lying on a stretch says nothing then (the template
+    /// the part is may differ just where it is hidden), nor does following neither.
     pub fn follows(&self) -> Follows {
         const MOST: f64 = 0.7;
         const LITTLE: f64 = 0.3;
         let (b, r) = (self.best_len > 0.0, self.rival_len > 0.0);
-        if (!b && !r) || self.hidden_len > 0.0 {
+        if self.hidden_len > 0.0 {
+            let seen =
+                |on: bool, follows: f64, other: bool, other_follows: f64| on && follows >= MOST && (!other || other_follows <= LITTLE);
+            return if seen(b, self.best_follows, r, self.rival_follows) {
+                Follows::Best
+            } else if seen(r, self.rival_follows, b, self.best_follows) {
+                Follows::Rival
+            } else {
+                Follows::Unclear
+            };
+        }
+        if !b && !r {
             return Follows::Unclear;
         }
         let best = if b { self.best_follows } else { 1.0 - self.rival_follows };

@@ -415,6 +415,14 @@ mod tests {
         let hidden =
             compare(&frame(&plate(25.0)), placed(&with, at), placed(&without, at), &|q: Pt| (q - lug_top).norm() < 10.0, 2.0, 6.0, 12.0);
         assert!(hidden.hidden_len > 0.0 && hidden.follows() == Follows::Unclear, "{hidden:?}");
+        // A neighbour against the other's straight edge hides that stretch, but the lug is seen
+        // and followed: that tells. Not lying where the hidden edge would be tells nothing.
+        let edge = at.apply(Pt::new(100.0, 0.0));
+        let by_edge = |q: Pt| (q - edge).norm() < 10.0;
+        let l = compare(&frame(&plate(25.0)), placed(&with, at), placed(&without, at), &by_edge, 2.0, 6.0, 12.0);
+        assert!(l.hidden_len > 0.0 && l.follows() == Follows::Best, "{l:?}");
+        let l = compare(&frame(&plate(0.0)), placed(&with, at), placed(&without, at), &by_edge, 2.0, 6.0, 12.0);
+        assert!(l.hidden_len > 0.0 && l.follows() == Follows::Unclear, "{l:?}");
         let l = cmp(&frame(&plate(25.0)), &with, &with);
         assert_eq!((l.best_len, l.rival_len, l.follows()), (0.0, 0.0, Follows::Unclear), "{l:?}");
     }

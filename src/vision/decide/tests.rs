@@ -358,7 +358,12 @@ fn where_templates_differ_decides_a_tie() {
         (Local { rival_len: 0.0, rival_follows: 0.0, ..local(0.9, 0.0) }, Follows::Best),
         (Local { rival_len: 0.0, rival_follows: 0.0, ..local(0.1, 0.0) }, Follows::Rival),
         (Local { best_len: 0.0, rival_len: 0.0, ..local(0.0, 0.0) }, Follows::Unclear),
-        (Local { hidden_len: 30.0, ..local(0.95, 0.05) }, Follows::Unclear),
+        // With a stretch hidden, only what is seen followed tells.
+        (Local { hidden_len: 30.0, ..local(0.95, 0.05) }, Follows::Best),
+        (Local { hidden_len: 30.0, ..local(0.05, 0.95) }, Follows::Rival),
+        (Local { hidden_len: 30.0, ..local(0.1, 0.2) }, Follows::Unclear),
+        (Local { hidden_len: 30.0, rival_len: 0.0, rival_follows: 0.0, ..local(0.1, 0.0) }, Follows::Unclear),
+        (Local { hidden_len: 30.0, best_len: 0.0, rival_len: 0.0, ..local(0.0, 0.0) }, Follows::Unclear),
     ] {
         assert_eq!(l.follows(), f, "{l:?}");
     }
