@@ -196,6 +196,50 @@ pub struct KnowledgeBase {
     pub entries: Vec<Entry>,
 }
 
+/// Two enrolled templates alike overall, as enrolment, the command line and the operator view
+/// report them: where a frame can tell them apart, or that nothing can.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct AlikePair {
+    /// The two, as "TYPE face".
+    pub first: String,
+    /// See `first`.
+    pub second: String,
+    /// `second`'s outline registered onto `first`'s: the worse of inliers and coverage.
+    pub fit: f64,
+    /// Some stretch of outline tells them apart in a clean frame.
+    pub told_apart: bool,
+    /// Length of outline apart, first's and second's, px.
+    pub apart_px: (f64, f64),
+    /// The largest distance of either outline from the other, px (at most the registration's
+    /// reach).
+    pub largest_px: f64,
+    /// Where they differ most, degrees around `first`'s centroid in its own frame.
+    pub at_deg: f64,
+}
+
+impl AlikePair {
+    /// The line the operator reads; with `mm_per_px` (a calibrated camera), the largest
+    /// difference in mm too.
+    pub fn describe(&self, mm_per_px: Option<f64>) -> String {
+        let largest = match mm_per_px {
+            Some(s) => format!("{:.0} px, {:.1} mm", self.largest_px, self.largest_px * s),
+            None => format!("{:.0} px", self.largest_px),
+        };
+        let (x, y) = (&self.first, &self.second);
+        if self.told_apart {
+            format!(
+                "{x} and {y} are alike (fit {:.2}); told apart where they differ: {:.0} + {:.0} px of outline, up to {largest} apart, at {:.0} deg of {x}",
+                self.fit, self.apart_px.0, self.apart_px.1, self.at_deg
+            )
+        } else {
+            format!(
+                "warning: {x} and {y}: no stretch of outline tells them apart (fit {:.2}, largest difference {largest}): a part of either is rejected ambiguous unless its line features tell",
+                self.fit
+            )
+        }
+    }
+}
+
 fn r3(v: f64) -> f64 {
     (v * 1000.0).round() / 1000.0
 }
@@ -204,6 +248,29 @@ impl KnowledgeBase {
     /// The templates alone, for an estimator.
     pub fn templates(&self) -> Vec<Template> {
         self.entries.iter().map(|e| e.template.clone()).collect()
+    }
+
+    /// The templates alike overall ([`crate::vision::differ::alike`], at the clean fit
+    /// tolerance and the fit a type is named at), each pair once; with `only`, those alike to
+    /// that type and face.
+    pub fn alike(&self, params: &crate::vision::Params, only: Option<(&str, Face)>) -> Vec<AlikePair> {
+        let templates = self.templates();
+        let lib = crate::vision::Library::new(&templates, params.signal_bins);
+        let name = |i: usize| format!("{} {}", templates[i].type_name, templates[i].face);
+        let is = |i: usize, (n, f): (&str, Face)| templates[i].type_name == n && templates[i].face == f;
+        crate::vision::differ::alike(&lib, params.fit_tolerance, params.min_fit)
+            .into_iter()
+            .filter(|a| only.is_none_or(|o| is(a.a, o) || is(a.b, o)))
+            .map(|a| AlikePair {
+                first: name(a.a),
+                second: name(a.b),
+                fit: a.fit,
+                told_apart: a.told_apart(),
+                apart_px: (a.a_len, a.b_len),
+                largest_px: a.largest,
+                at_deg: a.at_deg,
+            })
+            .collect()
     }
 
     /// Distinct enrolled types.

@@ -306,33 +306,17 @@ fn enroll(
     let replaced = kb.enroll(t, image.display().to_string())?;
     kb.save(kb_path)?;
     println!("{} {summary} in {}", if replaced { "replaced" } else { "enrolled" }, kb_path.display());
-    report_alike(&kb.templates(), Some((&new.0, new.1)));
+    report_alike(&kb, Some((&new.0, new.1)));
     Ok(ExitCode::SUCCESS)
 }
 
 /// Templates alike overall (with `only`: those alike to that type and face): where a frame can
 /// tell them apart, and a warning naming both where nothing can.
-fn report_alike(templates: &[Template], only: Option<(&str, Face)>) {
-    let params = Params::default();
-    let lib = lfi_bridge::vision::Library::new(templates, params.signal_bins);
-    let name = |i: usize| format!("{} {}", templates[i].type_name, templates[i].face);
-    let is = |i: usize, (n, f): (&str, Face)| templates[i].type_name == n && templates[i].face == f;
-    for a in lfi_bridge::vision::differ::alike(&lib, params.fit_tolerance, params.min_fit) {
-        if only.is_some_and(|o| !is(a.a, o) && !is(a.b, o)) {
-            continue;
-        }
-        let (x, y) = (name(a.a), name(a.b));
-        if a.told_apart() {
-            println!(
-                "{x} and {y} are alike (fit {:.2}); told apart where they differ: {:.0} + {:.0} px of outline, up to {:.0} px apart, at {:.0} deg of {x}",
-                a.fit, a.a_len, a.b_len, a.largest, a.at_deg
-            );
-        } else {
-            println!(
-                "warning: {x} and {y}: no stretch of outline tells them apart (fit {:.2}, largest difference {:.1} px): a part of either is rejected ambiguous unless its line features tell",
-                a.fit, a.largest
-            );
-            tracing::warn!(first = %x, second = %y, largest_px = a.largest, "no stretch of outline tells these templates apart");
+fn report_alike(kb: &KnowledgeBase, only: Option<(&str, Face)>) {
+    for a in kb.alike(&Params::default(), only) {
+        println!("{}", a.describe(None));
+        if !a.told_apart {
+            tracing::warn!(first = %a.first, second = %a.second, largest_px = a.largest_px, "no stretch of outline tells these templates apart");
         }
     }
 }
@@ -400,7 +384,7 @@ fn enroll_folder(kb_path: &Path, dir: &Path) -> Result<ExitCode> {
         );
     }
     kb.save(kb_path)?;
-    report_alike(&kb.templates(), None);
+    report_alike(&kb, None);
     println!(
         "enrolled {} templates ({} replaced), {} types in {}, in {:.1} s",
         plan.len(),

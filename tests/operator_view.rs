@@ -62,6 +62,9 @@ async fn every_endpoint_answers_with_its_content_type() {
     let (st, ct, body) = get("/api/camera/1/templates").await;
     assert_eq!((st, ct.as_str()), (200, "application/json"));
     assert_eq!(serde_json::from_slice::<serde_json::Value>(&body).unwrap().as_array().unwrap().len(), 6);
+    let (st, ct, body) = get("/api/camera/1/alike").await;
+    assert_eq!((st, ct.as_str()), (200, "application/json"));
+    assert!(serde_json::from_slice::<serde_json::Value>(&body).unwrap().is_array());
     let (st, ct, body) = get("/api/camera/1/template/0").await;
     assert_eq!((st, ct.as_str()), (200, "image/png"));
     assert_eq!(&body[1..4], b"PNG");
@@ -90,6 +93,15 @@ async fn enrolling_needs_the_token_and_shows_in_the_registers() {
     assert_eq!(st, 200, "{}", String::from_utf8_lossy(&resp));
     let mut ctx = plc(running.modbus_addr, 1).await;
     assert_eq!(read(&mut ctx, addr::TYPES_ENROLLED, 1).await[0], 4);
+    // The knowledge-base panel: the part enrolled again under a new name is alike to the type
+    // it is, and nothing tells them apart.
+    let (st, ct, resp) = tokio::task::spawn_blocking(move || http(h, "GET", "/api/camera/1/alike", &[], "")).await.unwrap();
+    assert_eq!((st, ct.as_str()), (200, "application/json"));
+    let alike: Vec<serde_json::Value> = serde_json::from_slice(&resp).unwrap();
+    let twin = alike.iter().find(|a| a["first"] == "newpart up" || a["second"] == "newpart up");
+    let twin = twin.unwrap_or_else(|| panic!("newpart not reported alike: {alike:?}"));
+    assert_eq!(twin["told_apart"], false, "{twin}");
+    assert!(twin["text"].as_str().unwrap().starts_with("warning: "), "{twin}");
     let (st, _, resp) = post(vec![("Authorization", "Bearer test-token-123")], r#"{"part": 7, "type": "x", "id": 10, "face": "up"}"#).await;
     assert_eq!(st, 400, "{}", String::from_utf8_lossy(&resp));
     // A name that would forge a log line is refused before anything is cut or written.

@@ -55,7 +55,14 @@ pub struct AppState {
     /// Per camera, the live picture encoded for the latest frame (by `Live::seq`): encoded once
     /// per frame, however many clients ask (the lock makes the others wait for that one).
     pub pictures: Arc<Vec<Picture>>,
+    /// Per camera, the templates alike overall for the knowledge base of a key (see
+    /// `views::templates_key`): worked out once per change of templates (the lock makes other
+    /// clients wait for that one).
+    pub alike: Arc<Vec<Alike>>,
 }
+
+/// A camera's alike report for a knowledge base, by its key.
+pub type Alike = tokio::sync::Mutex<Option<(String, Arc<Vec<AlikeView>>)>>;
 
 /// Starts the operator view beside a running appliance (which stops it with itself), on its own
 /// thread and single-threaded runtime.
@@ -71,6 +78,7 @@ pub async fn attach(running: &mut Running, cfg: &HttpConfig) -> Result<SocketAdd
         started: running.started,
         token: cfg.token.clone(),
         pictures,
+        alike: Arc::new(running.cameras.iter().map(|_| tokio::sync::Mutex::new(None)).collect()),
     };
     tracing::info!(
         "operator view on http://{addr}/ ({})",
@@ -177,6 +185,7 @@ pub fn router(state: AppState) -> Router {
         .route("/api/camera/{unit}/frame.jpg", get(frame_jpg))
         .route("/api/camera/{unit}/templates", get(templates))
         .route("/api/camera/{unit}/template/{index}", get(template_png))
+        .route("/api/camera/{unit}/alike", get(alike))
         .route("/api/camera/{unit}/enroll", post(enroll))
         .route("/api/camera/{unit}/job", post(change_job))
         .route("/api/camera/{unit}/archive", get(archive_list))
@@ -470,6 +479,51 @@ async fn templates(State(state): State<AppState>, Path(unit): Path<u8>) -> Resul
         })
         .collect();
     Ok(axum::Json(list).into_response())
+}
+
+/// Two enrolled templates alike overall, as the knowledge-base panel shows them.
+#[derive(Serialize)]
+pub struct AlikeView {
+    #[serde(flatten)]
+    pair: crate::kb::AlikePair,
+    /// The operator's line (the largest difference in mm too when the job is calibrated).
+    text: String,
+}
+
+/// The templates alike overall in the job in force's knowledge base: where a frame tells them
+/// apart, and a warning where nothing does (the same report as `enroll`).
+async fn alike(State(state): State<AppState>, Path(unit): Path<u8>) -> Result<Response, Failure> {
+    let cam = camera(&state, unit)?;
+    let k = state.cameras.iter().position(|c| c.unit_id == unit).expect("found above");
+    let kb = cam.templates.lock().unwrap_or_else(|p| p.into_inner()).clone();
+    let key = views::templates_key(&kb);
+    let mut cached = state.alike[k].lock().await;
+    if let Some((have, list)) = cached.as_ref()
+        && *have == key
+    {
+        return Ok(axum::Json(list.as_ref()).into_response());
+    }
+    let params = cam.estimator.read().unwrap_or_else(|p| p.into_inner()).params().clone();
+    let mm_per_px = {
+        let j = cam.job.lock().unwrap_or_else(|p| p.into_inner());
+        mm_per_px(&j.calibration)
+    };
+    let list = tokio::task::spawn_blocking(move || {
+        kb.alike(&params, None).into_iter().map(|pair| AlikeView { text: pair.describe(mm_per_px), pair }).collect::<Vec<_>>()
+    })
+    .await
+    .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+    let list = Arc::new(list);
+    *cached = Some((key, list.clone()));
+    Ok(axum::Json(list.as_ref()).into_response())
+}
+
+/// Millimetres per pixel near the image's origin, where the calibration maps pixels to mm.
+fn mm_per_px(c: &crate::calibration::Calibration) -> Option<f64> {
+    let (x0, y0) = c.to_robot(0.0, 0.0)?;
+    let (x1, y1) = c.to_robot(100.0, 0.0)?;
+    let s = (x1 - x0).hypot(y1 - y0) / 100.0;
+    (s.is_finite() && s > 0.0).then_some(s)
 }
 
 #[derive(Deserialize)]

@@ -185,6 +185,15 @@ fn calibration_view(c: &crate::calibration::Calibration) -> CalibrationView {
     CalibrationView { kind, summary: c.describe(), plate }
 }
 
+/// What names a knowledge base's templates: changes whenever one is enrolled or replaced.
+pub(super) fn templates_key(kb: &crate::kb::KnowledgeBase) -> String {
+    kb.entries
+        .iter()
+        .map(|e| format!("{}:{}:{}:{}", e.template.type_id, e.template.type_name, e.template.face, e.source))
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
 /// The whole page's state.
 #[derive(Serialize)]
 pub struct StateView {
@@ -287,13 +296,7 @@ pub fn camera_view(c: &CameraHandle) -> CameraView {
     };
     let (templates_key, names): (String, Vec<(u16, String)>) = {
         let kb = c.templates.lock().unwrap_or_else(|p| p.into_inner());
-        let key = kb
-            .entries
-            .iter()
-            .map(|e| format!("{}:{}:{}", e.template.type_id, e.template.type_name, e.template.face))
-            .collect::<Vec<_>>()
-            .join(",");
-        (key, kb.entries.iter().map(|e| (e.template.type_id, e.template.type_name.clone())).collect())
+        (templates_key(&kb), kb.entries.iter().map(|e| (e.template.type_id, e.template.type_name.clone())).collect())
     };
     let type_name = |id: u16| names.iter().find(|(i, _)| *i == id).map(|(_, n)| n.clone());
     let (history_kept, history_dropped, frame_interval_s) = match &c.history {

@@ -748,9 +748,10 @@ impl Estimator {
             let light = differ::Light::new(seen.frame, seen.brighter, seen.contrast, seen.noise);
             m.departure = differ::departure(seen.outline_index, placed, Some(&light), seen.excused, false, apart, min_run);
             // In a region, where the outline leaves the best template may be a neighbour's doing
-            // as well as the part's: the region's outline is then no clean view of the part, and
-            // the stretches where the siblings differ do not tell (the line features decide, as
-            // they did before siblings were compared).
+            // as well as the part's: the region's outline is then no clean view of the part. The
+            // departure counts as hidden, so that only what is seen followed where the siblings
+            // differ tells ([`Local::follows`]); else the line features decide, as they did before
+            // siblings were compared.
             if let (true, Some(d), Some(local)) = (sibling, m.departure, m.rival.as_mut().and_then(|r| r.local.as_mut())) {
                 local.hidden_len += d.len;
                 m.departure = None;
