@@ -338,7 +338,9 @@ pub enum Follows {
 impl Local {
     /// Which template the part follows: most (at least 70 %) of one's stretches and little (at
     /// most 30 %) of the other's. Where only one template has stretches (a lug too narrow for
-    /// the other's outline to run apart from it), not following it is following the other.
+    /// the other's outline to run apart from it), not following it is following the other. A
+    /// part on less than half of each one's stretches follows neither: it is like both except
+    /// there (the ends of a stretch, where the templates only begin to part, lie near both).
     ///
     /// A stretch a neighbour hides in part may be the one that tells, so with one hidden only
     /// what is seen to be followed counts: the part lies on most of one template's stretches in
@@ -347,6 +349,7 @@ impl Local {
     pub fn follows(&self) -> Follows {
         const MOST: f64 = 0.7;
         const LITTLE: f64 = 0.3;
+        const HALF: f64 = 0.5;
         let (b, r) = (self.best_len > 0.0, self.rival_len > 0.0);
         if self.hidden_len > 0.0 {
             let seen =
@@ -368,7 +371,7 @@ impl Local {
             Follows::Best
         } else if rival >= MOST && best <= LITTLE {
             Follows::Rival
-        } else if b && r && best <= LITTLE && rival <= LITTLE {
+        } else if b && r && best < HALF && rival < HALF {
             Follows::Neither
         } else {
             Follows::Unclear

@@ -1013,8 +1013,10 @@ impl Estimator {
     }
 
     /// The other types and faces (by fit) whose outline ties with the best's at the tight
-    /// tolerance ([`Rival::ties`]), each with its candidate's index.
-    fn tied(&self, outline: &[Pt], cands: &[Candidate], limits: &decide::Limits) -> Vec<(usize, Rival)> {
+    /// tolerance ([`Rival::ties`]), each with its candidate's index: measured on the part's
+    /// outline evened out against the best ([`register::even_out`]), at four times the scatter
+    /// left.
+    fn tied(&self, even: &register::Evened, cands: &[Candidate], limits: &decide::Limits) -> Vec<(usize, Rival)> {
         let best = &cands[0];
         let tpl = &self.lib.entries[best.entry].template;
         let others: Vec<usize> = (1..cands.len())
@@ -1026,7 +1028,8 @@ impl Estimator {
         if others.is_empty() {
             return Vec::new();
         }
-        let tight = register::tight_tolerance(best.reg.rms, self.params.fit_tolerance, best.tolerance);
+        let tight = register::tight_tolerance(even.scatter, self.params.fit_tolerance, best.tolerance);
+        let outline = &even.outline;
         let best_tight = register::measure(outline, &self.lib.entries[best.entry].index, best.reg.pose, tight, 1).fit();
         others
             .into_iter()
@@ -1074,13 +1077,14 @@ impl Estimator {
         lambda: f64,
         limits: &decide::Limits,
     ) -> Option<Rival> {
-        let mut part: Option<OutlineIndex> = None;
         for round in 0..3 {
-            let tied = self.tied(outline, cands, limits);
+            let best = &self.lib.entries[cands[0].entry];
+            let even = register::even_out(outline, &best.index, cands[0].reg.pose, cands[0].tolerance);
+            let tied = self.tied(&even, cands, limits);
             if tied.is_empty() {
                 return None;
             }
-            let part = part.get_or_insert_with(|| OutlineIndex::of_frame(outline));
+            let part = &OutlineIndex::of_frame(&even.outline);
             let judged: Vec<(usize, Rival)> = tied
                 .into_iter()
                 .map(|(k, mut r)| {

@@ -355,6 +355,8 @@ fn where_templates_differ_decides_a_tie() {
         (local(0.05, 0.95), Follows::Rival),
         (local(0.1, 0.2), Follows::Neither),
         (local(0.5, 0.5), Follows::Unclear),
+        (local(0.4, 0.1), Follows::Neither),
+        (local(0.5, 0.1), Follows::Unclear),
         (Local { rival_len: 0.0, rival_follows: 0.0, ..local(0.9, 0.0) }, Follows::Best),
         (Local { rival_len: 0.0, rival_follows: 0.0, ..local(0.1, 0.0) }, Follows::Rival),
         (Local { best_len: 0.0, rival_len: 0.0, ..local(0.0, 0.0) }, Follows::Unclear),
