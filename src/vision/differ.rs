@@ -182,6 +182,28 @@ impl<'a> Light<'a> {
         s / 15.0
     }
 
+    /// The frame's gray level at `q`.
+    fn at(&self, q: Pt) -> f64 {
+        self.frame.bilinear(q.x, q.y)
+    }
+
+    /// The belt's and the part's gray level around an outline (`outline`, frame pixels, with
+    /// outward unit normals `normal(i)`): the medians `reach` outside and inside it.
+    fn levels(&self, outline: &[Pt], normal: impl Fn(usize) -> Pt, reach: f64) -> Option<(f64, f64)> {
+        let (mut belt, mut body): (Vec<f64>, Vec<f64>) = (0..outline.len())
+            .step_by(4)
+            .map(|i| {
+                let n = normal(i);
+                (self.at(outline[i] + n.scale(reach)), self.at(outline[i] - n.scale(reach)))
+            })
+            .unzip();
+        if belt.is_empty() {
+            return None;
+        }
+        let mid = belt.len() / 2;
+        Some((*belt.select_nth_unstable_by(mid, f64::total_cmp).1, *body.select_nth_unstable_by(mid, f64::total_cmp).1))
+    }
+
     /// Whether the frame steps from part (inside) to belt (outside) across the line through
     /// `at` with outward unit normal `n`, within `r` of it either way.
     pub fn shows(&self, at: Pt, n: Pt, r: f64) -> bool {
@@ -201,7 +223,10 @@ impl<'a> Light<'a> {
 /// or under a neighbouring part, where the part's own outline is not seen) are not judged, nor,
 /// unless `beyond`, the part's outline outside the template's (a region's outline runs around
 /// whatever else lies in it; material the template lacks shows anyway as the template's outline
-/// running where the frame shows no edge).
+/// running where the frame shows no edge). Nor is a run whose enclosed strip (midway between
+/// the two outlines) looks, by its median gray level against the belt's and the part's around
+/// the outline, unlike what it claims: belt where the part has less material, the part's own
+/// where it has more (a stain against a shaded edge is neither).
 pub fn departure(
     part: &OutlineIndex,
     tpl: Placed<'_>,
@@ -217,13 +242,7 @@ pub fn departure(
     let placed: Vec<Pt> = tpl_pts.iter().map(|&q| tpl.pose.apply(q)).collect();
     // The template's outline at its point or segment `i`, in the frame: whether the frame shows
     // the part's edge there.
-    let edge_at = |at: Pt, i: usize| {
-        light.is_some_and(|l| {
-            let n = tpl.pose.apply(tpl_pts[i] + tpl.index.normal(i)) - tpl.pose.apply(tpl_pts[i]);
-            let n = n.scale(1.0 / n.norm().max(1e-9));
-            l.shows(at, n, 0.5 * apart)
-        })
-    };
+    let edge_at = |at: Pt, i: usize| light.is_some_and(|l| l.shows(at, outward(tpl, i), 0.5 * apart));
     let missing: Vec<bool> = placed.iter().enumerate().map(|(i, &q)| !part.any_within(q, apart) && !edge_at(q, i) && !excused(q)).collect();
     let own = part.outline();
     let extra: Vec<bool> = own
@@ -238,43 +257,65 @@ pub fn departure(
         .collect();
     let depth_missing = |q: Pt| part.nearest(q, MAX_REACH).map_or(MAX_REACH, |(_, d, _)| d);
     let depth_extra = |q: Pt| tpl.index.nearest(to_tpl.apply(q), MAX_REACH).map_or(MAX_REACH, |(_, d, _)| d * tpl.pose.scale);
-    let longest = |outline: &[Pt], off: &[bool]| runs(outline, off, min_run).into_iter().max_by(|a, b| a.len.total_cmp(&b.len));
-    let m = longest(&placed, &missing).map(|r| (r, true));
-    let e = longest(own, &extra).map(|r| (r, false));
-    let (run, lacks) = match (m, e) {
-        (Some(m), Some(e)) => {
-            if m.0.len >= e.0.len {
-                m
-            } else {
-                e
+    // Where the other outline is nearest a point of a run: the part's for the template's
+    // outline, the template's for the part's.
+    let other_missing = |q: Pt| part.nearest(q, MAX_REACH).map(|(_, _, foot)| foot);
+    let other_extra = |q: Pt| tpl.index.nearest(to_tpl.apply(q), MAX_REACH).map(|(_, _, foot)| tpl.pose.apply(foot));
+    let levels = light.and_then(|l| l.levels(&placed, |i| outward(tpl, i), apart));
+    let tpl_outline = tpl.index.outline();
+    let judged = |run: Run, lacks: bool| -> Option<Departure> {
+        let outline: &[Pt] = if lacks { &placed } else { own };
+        let depth = |q: Pt| if lacks { depth_missing(q) } else { depth_extra(q) };
+        let other = |q: Pt| if lacks { other_missing(q) } else { other_extra(q) };
+        // Less material than the template there: the part's outline runs inside the template's,
+        // or the template's runs outside the part's.
+        let less = run
+            .points
+            .iter()
+            .filter(|&&i| {
+                if lacks {
+                    !super::geometry::contains(own, outline[i])
+                } else {
+                    super::geometry::contains(tpl_outline, to_tpl.apply(outline[i]))
+                }
+            })
+            .count();
+        let less_material = 2 * less > run.points.len();
+        // What lies between the two outlines must look like what the departure says: the belt
+        // where the part has less material (a notch), the part where it has more (a lug). A
+        // stain against the part or a crevice the outline ran into looks like neither claims.
+        if let (Some(l), Some((belt, body))) = (light, levels) {
+            let mut between: Vec<f64> =
+                run.points.iter().filter_map(|&i| other(outline[i]).map(|o| l.at((outline[i] + o).scale(0.5)))).collect();
+            if !between.is_empty() {
+                let mid = between.len() / 2;
+                let m = *between.select_nth_unstable_by(mid, f64::total_cmp).1;
+                let belt_like = (m - belt).abs() < (m - body).abs();
+                if belt_like != less_material {
+                    return None;
+                }
             }
         }
-        (m, e) => m.or(e)?,
-    };
-    let (outline, depth): (&[Pt], &dyn Fn(Pt) -> f64) = if lacks { (&placed, &depth_missing) } else { (own, &depth_extra) };
-    let mid = outline[run.points[run.points.len() / 2]];
-    // Less material than the template there: the part's outline runs inside the template's, or
-    // the template's runs outside the part's.
-    let tpl_outline = tpl.index.outline();
-    let less = run
-        .points
-        .iter()
-        .filter(|&&i| {
-            if lacks {
-                !super::geometry::contains(own, outline[i])
-            } else {
-                super::geometry::contains(tpl_outline, to_tpl.apply(outline[i]))
-            }
+        let mid = outline[run.points[run.points.len() / 2]];
+        Some(Departure {
+            less_material,
+            len: run.len,
+            depth: run.points.iter().map(|&i| depth(outline[i])).fold(0.0, f64::max),
+            apart,
+            at_deg: tpl.angle_at(mid),
+            part_lacks: lacks,
         })
-        .count();
-    Some(Departure {
-        less_material: 2 * less > run.points.len(),
-        len: run.len,
-        depth: run.points.iter().map(|&i| depth(outline[i])).fold(0.0, f64::max),
-        apart,
-        at_deg: tpl.angle_at(mid),
-        part_lacks: lacks,
-    })
+    };
+    let all =
+        runs(&placed, &missing, min_run).into_iter().map(|r| (r, true)).chain(runs(own, &extra, min_run).into_iter().map(|r| (r, false)));
+    all.filter_map(|(r, lacks)| judged(r, lacks)).max_by(|a, b| a.len.total_cmp(&b.len))
+}
+
+/// The template's outward unit normal at its point `i`, in the frame.
+fn outward(tpl: Placed<'_>, i: usize) -> Pt {
+    let pts = tpl.index.outline();
+    let n = tpl.pose.apply(pts[i] + tpl.index.normal(i)) - tpl.pose.apply(pts[i]);
+    n.scale(1.0 / n.norm().max(1e-9))
 }
 
 /// Two enrolled templates whose outlines are alike overall (revisions of one part, two faces of
@@ -506,6 +547,45 @@ mod tests {
             assert_eq!(d.is_some(), departs, "notch in the image {notch}: {d:?}");
             if let Some(d) = d {
                 assert!(d.less_material, "{d:?}");
+            }
+        }
+    }
+
+    /// The outline runs out around something against the plate's shaded edge, where the edge
+    /// itself shows too weakly to tell: a lug of the part's own material departs; a stain on the
+    /// belt (gray between the belt and the part, nearer the belt) is not material the part has.
+    #[test]
+    fn what_lies_between_the_outlines_must_look_like_what_the_departure_says() {
+        use crate::vision::frame::GrayImage;
+        let at = pose(200.0, 150.0, 0.0);
+        let (w, h) = (400, 300);
+        let image = |lug: u8| {
+            let mut img = GrayImage::new(w, h, 50);
+            for y in 75..200 {
+                for x in 100..300 {
+                    let on_lug = (180..220).contains(&x) && y < 100;
+                    let v = if y >= 100 {
+                        // The plate's top edge shaded, as a rounded edge is.
+                        if y < 106 { 80 } else { 180 }
+                    } else if on_lug {
+                        lug
+                    } else {
+                        50
+                    };
+                    img.data[y * w + x] = v;
+                }
+            }
+            img
+        };
+        let without = OutlineIndex::new(&plate(0.0));
+        let part = OutlineIndex::of_frame(&plate(25.0).iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
+        for (lug, departs) in [(180, true), (70, false)] {
+            let img = image(lug);
+            let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
+            let d = departure(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
+            assert_eq!(d.is_some(), departs, "lug at gray {lug}: {d:?}");
+            if let Some(d) = d {
+                assert!(!d.less_material && !d.part_lacks, "{d:?}");
             }
         }
     }
