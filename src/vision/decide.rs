@@ -308,6 +308,8 @@ pub struct Local {
 pub struct Departure {
     /// Its length along the outline, px.
     pub len: f64,
+    /// How wide it is: the area between the two outlines over its depth, px.
+    pub width: f64,
     /// How far the outlines are apart there at most, px (capped at the registration's reach).
     pub depth: f64,
     /// The separation that counts as apart, px.
@@ -320,6 +322,14 @@ pub struct Departure {
     /// The part has less material there than the template (a notch, a lug cut short), rather
     /// than more (a lug, or something lying against it).
     pub less_material: bool,
+}
+
+impl Departure {
+    /// Whether it makes the part a type not enrolled: deep and wide (a notch or lug of a few
+    /// millimetres), not the outline's noise or a slit.
+    pub fn counts(&self, l: &Limits) -> bool {
+        self.depth >= l.departure_depth * self.apart && self.width >= l.departure_width * self.apart
+    }
 }
 
 /// Which template the part follows where two differ.
@@ -523,6 +533,8 @@ pub struct Limits {
     /// A departure from the best template at least this many times as deep as the separation
     /// that counts as apart makes a part told from a sibling a type not enrolled.
     pub departure_depth: f64,
+    /// ... and at least this many times as wide (a slit the outline ran into is not a notch).
+    pub departure_width: f64,
     /// The largest region one part can make (the largest template at the largest scale, times
     /// `touching_area_ratio`), px^2.
     pub max_area: f64,
@@ -615,11 +627,13 @@ fn ladder(m: &Measured, l: &Limits, mut seen: impl FnMut(Test, bool)) -> Option<
             });
         }
     }
-    // Told from a sibling by where they differ, it must follow the best everywhere else too.
-    if let (Some(d), Some(r), Some(like)) = (m.departure, &m.rival, best_named(m))
-        && test(Test::Departure, d.depth < l.departure_depth * d.apart)
+    // It must follow the best everywhere (told from a sibling by where they differ, everywhere
+    // else): a notch or lug the template lacks, deep and wide, is a type not enrolled.
+    if let (Some(d), Some(like)) = (m.departure, best_named(m))
+        && test(Test::Departure, !d.counts(l))
     {
-        return Some(Verdict::Unlike { like, rival: Some(r.clone()), departure: Some(d) });
+        let rival = m.rival.as_ref().filter(|r| r.ties(l)).cloned();
+        return Some(Verdict::Unlike { like, rival, departure: Some(d) });
     }
     if let Some(lines) = &m.lines
         && test(Test::Confidence, lines.confidence >= l.accept_threshold)
@@ -802,11 +816,13 @@ impl Decision {
                     let d = m.departure.expect("tested");
                     out.push(Measure::new(
                         "follows the best everywhere else",
-                        format!("{:.0} px of outline {:.0} px deep at {:.0} deg", d.len, d.depth, d.at_deg),
+                        format!("{:.0} px of outline {:.0} px deep, {:.0} px wide at {:.0} deg", d.len, d.depth, d.width, d.at_deg),
                         format!(
-                            "departures < {:.0} px deep ({} x {:.1} px apart)",
+                            "departures < {:.0} px deep or < {:.0} px wide ({} and {} x {:.1} px apart)",
                             l.departure_depth * d.apart,
+                            l.departure_width * d.apart,
                             l.departure_depth,
+                            l.departure_width,
                             d.apart
                         ),
                         pass,

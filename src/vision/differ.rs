@@ -207,7 +207,12 @@ impl<'a> Light<'a> {
     /// Whether the frame steps from part (inside) to belt (outside) across the line through
     /// `at` with outward unit normal `n`, within `r` of it either way.
     pub fn shows(&self, at: Pt, n: Pt, r: f64) -> bool {
-        self.sign * (self.mean(at - n.scale(r), n) - self.mean(at + n.scale(r), n)) >= self.least
+        self.step(at, n, r) >= self.least
+    }
+
+    /// The step in gray level across that line, positive with the part's polarity.
+    fn step(&self, at: Pt, n: Pt, r: f64) -> f64 {
+        self.sign * (self.mean(at - n.scale(r), n) - self.mean(at + n.scale(r), n))
     }
 }
 
@@ -296,15 +301,56 @@ pub fn departure(
                 }
             }
         }
+        let depth_max = run.points.iter().map(|&i| depth(outline[i])).fold(0.0, f64::max);
+        // Wide as well as deep: the area between the two outlines over its depth. A run into a
+        // slit the outline entered further than the template's is long and deep but narrow.
+        let mut poly: Vec<Pt> = run.points.iter().map(|&i| outline[i]).collect();
+        poly.extend(run.points.iter().rev().filter_map(|&i| other(outline[i])));
+        let width = super::geometry::area_centroid(&poly).0.abs() / depth_max.max(1e-9);
+        // The template's own outline where it faces itself across a narrow gap of belt (a
+        // crevice between a boss and an arm): how deep an outline runs into it is the light's
+        // doing, not the part's shape.
+        let crevice = run
+            .points
+            .iter()
+            .filter(|&&i| {
+                let j = if lacks { Some(i) } else { tpl.index.nearest(to_tpl.apply(outline[i]), MAX_REACH).map(|(j, _, _)| j) };
+                j.is_some_and(|j| faces_itself(tpl.index, j, NARROW * apart / tpl.pose.scale))
+            })
+            .count();
+        if (crevice as f64) > CREVICE_SHARE * run.points.len() as f64 {
+            return None;
+        }
+        // Where the part lacks material, the belt shows on both sides of the template's outline
+        // across the notch's mouth: a step there (the shaded rim of a part lit from above, which
+        // the outline stopped short of, following the lit face) is the part's edge seen
+        // otherwise. Measured where the departure is deep (at least half its depth), away
+        // from the notch's ends, where the window across the template's outline still holds
+        // the part's walls.
+        if less_material && let (Some(l), Some((belt, body))) = (light, levels) {
+            let mut steps: Vec<f64> = run
+                .points
+                .iter()
+                .filter(|&&i| depth(outline[i]) >= 0.5 * depth_max)
+                .filter_map(|&i| {
+                    let (j, foot) = if lacks {
+                        (i, tpl_outline[i])
+                    } else {
+                        tpl.index.nearest(to_tpl.apply(outline[i]), MAX_REACH).map(|(j, _, f)| (j, f))?
+                    };
+                    Some(l.step(tpl.pose.apply(foot), outward(tpl, j), 0.5 * apart))
+                })
+                .collect();
+            if !steps.is_empty() {
+                let mid = steps.len() / 2;
+                let step = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
+                if step.abs() > STEP_SHARE * (body - belt).abs() {
+                    return None;
+                }
+            }
+        }
         let mid = outline[run.points[run.points.len() / 2]];
-        Some(Departure {
-            less_material,
-            len: run.len,
-            depth: run.points.iter().map(|&i| depth(outline[i])).fold(0.0, f64::max),
-            apart,
-            at_deg: tpl.angle_at(mid),
-            part_lacks: lacks,
-        })
+        Some(Departure { width, less_material, len: run.len, depth: depth_max, apart, at_deg: tpl.angle_at(mid), part_lacks: lacks })
     };
     let all =
         runs(&placed, &missing, min_run).into_iter().map(|r| (r, true)).chain(runs(own, &extra, min_run).into_iter().map(|r| (r, false)));
@@ -316,6 +362,31 @@ fn outward(tpl: Placed<'_>, i: usize) -> Pt {
     let pts = tpl.index.outline();
     let n = tpl.pose.apply(pts[i] + tpl.index.normal(i)) - tpl.pose.apply(pts[i]);
     n.scale(1.0 / n.norm().max(1e-9))
+}
+
+/// A gap of belt narrower than this many times the separation, between two stretches of one
+/// outline, is a crevice ([`faces_itself`]).
+const NARROW: f64 = 4.0;
+/// A run more than this share of which lies along a crevice of the template is not judged.
+const CREVICE_SHARE: f64 = 0.1;
+/// Where the part lacks material, a step across the template's outline larger than this share
+/// of the part's contrast says the part's edge is there after all.
+const STEP_SHARE: f64 = 0.1;
+
+/// Whether the outline `index` meets itself again within `gap` (its own pixels) straight out
+/// from its segment `j`: the segment is a wall of a crevice.
+fn faces_itself(index: &OutlineIndex, j: usize, gap: f64) -> bool {
+    let (p, n) = (index.outline()[j], index.normal(j));
+    // From 2 px out (clear of the segment itself and its neighbours on a smooth outline), in
+    // 1 px steps.
+    let mut t = 2.0;
+    while t <= gap {
+        if index.any_within(p + n.scale(t), 1.0) {
+            return true;
+        }
+        t += 1.0;
+    }
+    false
 }
 
 /// Two enrolled templates whose outlines are alike overall (revisions of one part, two faces of

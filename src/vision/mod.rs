@@ -208,6 +208,10 @@ pub struct Params {
     /// tolerance, deeper than the outline's noise and shallower than a design revision's change
     /// of a few millimetres.
     pub departure_depth: f64,
+    /// ... and at least this many times it wide (the area between the outlines over the
+    /// depth): three times, two to five millimetres, a notch or lug rather than a slit the
+    /// outline ran further into than the template's.
+    pub departure_width: f64,
     /// Confidence: lambda = lambda0 (1 - alpha noise).
     pub lambda0: f64,
     /// Noise's weight in lambda (the study's 0.5).
@@ -240,6 +244,7 @@ impl Default for Params {
             debris_fraction: 0.01,
             min_support: 0.93,
             departure_depth: 2.0,
+            departure_width: 3.0,
             lambda0: 25.0,
             alpha: 0.5,
             accept_threshold: 0.5,
@@ -552,6 +557,7 @@ impl Estimator {
             accept_threshold: p.accept_threshold,
             touching_area_ratio: p.touching_area_ratio,
             departure_depth: p.departure_depth,
+            departure_width: p.departure_width,
             max_area: p.touching_area_ratio * self.max_template_area * (p.scale_range.1 * p.scale_range.1),
         }
     }
@@ -867,12 +873,12 @@ impl Estimator {
         // From here on the part has a type, face and pose, accepted or not.
         est.name(tpl, best.entry, pose);
 
-        // Told from a tied sibling by where the two differ, it must follow the best everywhere
-        // else too, as closely as an outline of the part at this frame's noise follows its own
-        // template (the fit tolerance and the noise's share of the tolerance, not this
+        // It must follow the best everywhere (told from a tied sibling by where the two differ,
+        // everywhere else), as closely as an outline of the part at this frame's noise follows
+        // its own template (the fit tolerance and the noise's share of the tolerance, not this
         // outline's residual: a loose fit must not widen what counts as following, or a
         // different part that only resembles the best passes).
-        if m.rival.as_ref().is_some_and(|r| r.ties(&limits) && r.local.map(|l| l.follows()) == Some(Follows::Best)) {
+        {
             let (apart, min_run) = differ::separation(self.clean_tolerance(noise));
             let placed = differ::Placed { index: &self.lib.entries[best.entry].index, pose, centroid: tpl.centroid };
             let light = differ::Light::new(frame, brighter, contrast, noise);

@@ -15,6 +15,7 @@ fn limits() -> Limits {
         accept_threshold: 0.5,
         touching_area_ratio: 1.3,
         departure_depth: 2.0,
+        departure_width: 3.0,
         max_area: 200_000.0,
     }
 }
@@ -339,7 +340,7 @@ fn where_templates_differ_decides_a_tie() {
             confidence: 0.8,
             local: Some(local(0.95, 0.0)),
         });
-        m.departure = Some(Departure { len: 90.0, depth, apart: 6.0, at_deg: 40.0, part_lacks: false, less_material: false });
+        m.departure = Some(Departure { len: 90.0, width: 40.0, depth, apart: 6.0, at_deg: 40.0, part_lacks: false, less_material: false });
         decide(m, limits())
     };
     assert_eq!(departing(10.0).verdict, Verdict::Accept);
@@ -348,6 +349,19 @@ fn where_templates_differ_decides_a_tie() {
     assert_eq!(d.verdict.reason(), Reason::UnknownType);
     assert_eq!(failed_rows(&d), ["follows the best everywhere else"]);
     assert!(d.to_string().starts_with("like bracket up (not bracket down) except 90 px of outline 24 px deep at 40 deg"), "{d}");
+    // Without any sibling enrolled, the same: a notch or lug deep and wide is a type not
+    // enrolled (nothing tied: no "not ..."), a slit as deep but narrow is not.
+    let alone = |depth: f64, width: f64| {
+        let mut m = separate();
+        m.departure = Some(Departure { len: 90.0, width, depth, apart: 6.0, at_deg: 250.0, part_lacks: false, less_material: true });
+        decide(m, limits())
+    };
+    assert_eq!(alone(24.0, 10.0).verdict, Verdict::Accept);
+    assert_eq!(alone(10.0, 40.0).verdict, Verdict::Accept);
+    let d = alone(24.0, 40.0);
+    assert!(matches!(&d.verdict, Verdict::Unlike { rival: None, departure: Some(_), .. }), "{}", d.verdict);
+    assert_eq!(failed_rows(&d), ["follows the best everywhere else"]);
+    assert!(d.to_string().starts_with("like bracket up except 90 px of outline 24 px deep at 250 deg"), "{d}");
     // Which template it follows: most of one's stretches and little of the other's; one side
     // without stretches counts as not followed by the other.
     for (l, f) in [
@@ -381,7 +395,7 @@ fn alone_in_its_region_a_part_not_all_explained_is_a_type_not_enrolled() {
     let d = decide(m.clone(), limits());
     assert_eq!(d.verdict.reason(), Reason::Touching, "{}", d.verdict);
     m.alone = true;
-    m.departure = Some(Departure { len: 120.0, depth: 24.0, apart: 6.0, at_deg: 95.0, part_lacks: true, less_material: true });
+    m.departure = Some(Departure { len: 120.0, width: 40.0, depth: 24.0, apart: 6.0, at_deg: 95.0, part_lacks: true, less_material: true });
     let d = decide(m, limits());
     assert!(matches!(&d.verdict, Verdict::Unlike { rival: None, departure: Some(_), .. }), "{}", d.verdict);
     assert_eq!(d.verdict.reason(), Reason::UnknownType);
