@@ -304,8 +304,15 @@ pub fn departure(
         let depth_max = run.points.iter().map(|&i| depth(outline[i])).fold(0.0, f64::max);
         // Wide as well as deep: the area between the two outlines over its depth. A run into a
         // slit the outline entered further than the template's is long and deep but narrow.
+        // Beyond the index's reach, the other outline's nearest point is searched for point by
+        // point (few points, and only for departures deeper than the reach).
+        let far = |q: Pt| {
+            let pts: Box<dyn Iterator<Item = Pt>> =
+                if lacks { Box::new(own.iter().copied()) } else { Box::new(tpl_pts.iter().map(|&t| tpl.pose.apply(t))) };
+            pts.min_by(|a, b| (*a - q).norm().total_cmp(&(*b - q).norm()))
+        };
         let mut poly: Vec<Pt> = run.points.iter().map(|&i| outline[i]).collect();
-        poly.extend(run.points.iter().rev().filter_map(|&i| other(outline[i])));
+        poly.extend(run.points.iter().rev().filter_map(|&i| other(outline[i]).or_else(|| far(outline[i]))));
         let width = super::geometry::area_centroid(&poly).0.abs() / depth_max.max(1e-9);
         // The template's own outline where it faces itself across a narrow gap of belt (a
         // crevice between a boss and an arm): how deep an outline runs into it is the light's
@@ -336,7 +343,11 @@ pub fn departure(
                     let (j, foot) = if lacks {
                         (i, tpl_outline[i])
                     } else {
-                        tpl.index.nearest(to_tpl.apply(outline[i]), MAX_REACH).map(|(j, _, f)| (j, f))?
+                        let q = to_tpl.apply(outline[i]);
+                        tpl.index.nearest(q, MAX_REACH).map(|(j, _, f)| (j, f)).or_else(|| {
+                            let j = (0..tpl_pts.len()).min_by(|&a, &b| (tpl_pts[a] - q).norm().total_cmp(&(tpl_pts[b] - q).norm()))?;
+                            Some((j, tpl_pts[j]))
+                        })?
                     };
                     Some(l.step(tpl.pose.apply(foot), outward(tpl, j), 0.5 * apart))
                 })
@@ -659,5 +670,64 @@ mod tests {
                 assert!(!d.less_material && !d.part_lacks, "{d:?}");
             }
         }
+    }
+
+    /// A notch's mouth shows belt on both sides of the template's outline; the part's edge seen
+    /// there after all (a shaded rim, darker than the lit face the outline followed but
+    /// brighter than the belt, too faint for the edge test) is not material the part lacks.
+    #[test]
+    fn a_notch_shows_belt_across_its_mouth() {
+        use crate::vision::frame::GrayImage;
+        let at = pose(200.0, 150.0, 0.0);
+        let (w, h) = (400, 300);
+        let image = |band: u8| {
+            let mut img = GrayImage::new(w, h, 50);
+            for y in 100..200 {
+                for x in 100..300 {
+                    let in_notch = (180..220).contains(&x) && y < 125;
+                    img.data[y * w + x] = if in_notch { band } else { 180 };
+                }
+            }
+            img
+        };
+        let without = OutlineIndex::new(&plate(0.0));
+        let part = OutlineIndex::of_frame(&plate(-25.0).iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
+        for (band, departs) in [(50, true), (75, false)] {
+            let img = image(band);
+            let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
+            let d = departure(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
+            assert_eq!(d.is_some(), departs, "notch at gray {band}: {d:?}");
+            if let Some(d) = d {
+                assert!(d.less_material && d.width > 30.0, "{d:?}");
+            }
+        }
+    }
+
+    /// An outline that runs further into a crevice of the template (a slit between a boss and
+    /// an arm) than the template's does departs deep and long, but along walls that face each
+    /// other across a little belt: not judged. The same outline against a template without the
+    /// crevice departs (narrow: the ladder's width test is what then lets it pass).
+    #[test]
+    fn an_outline_deeper_in_a_crevice_of_the_template_is_not_a_departure() {
+        let slit = |depth: f64| {
+            let corners = [
+                Pt::new(0.0, 0.0),
+                Pt::new(96.0, 0.0),
+                Pt::new(96.0, depth),
+                Pt::new(104.0, depth),
+                Pt::new(104.0, 0.0),
+                Pt::new(200.0, 0.0),
+                Pt::new(200.0, 100.0),
+                Pt::new(0.0, 100.0),
+            ];
+            crate::vision::geometry::resample_closed(&corners, 2.0)
+        };
+        let at = pose(600.0, 400.0, 21.0);
+        let part = OutlineIndex::of_frame(&slit(40.0).iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
+        let with = OutlineIndex::new(&slit(8.0));
+        assert_eq!(departure(&part, placed(&with, at), None, &|_| false, true, 6.0, 12.0), None);
+        let without = OutlineIndex::new(&plate(0.0));
+        let d = departure(&part, placed(&without, at), None, &|_| false, true, 6.0, 12.0).expect("a departure");
+        assert!(d.depth >= 20.0 && d.width < 18.0, "{d:?}");
     }
 }
