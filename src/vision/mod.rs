@@ -739,11 +739,11 @@ impl Estimator {
             alone: ex.parts.len() == 1 && ex.leftover.iter().all(|&(area, _)| area < self.min_area),
             ..Measured::default()
         };
-        // Where it departs from its template: alone in its region and not all of it explained,
-        // or told from a sibling (which it must follow everywhere else, as closely as a clean
+        // Where it departs from its template: alone in its region (its outline is the part's
+        // own), or told from a sibling (which it must follow everywhere else, as closely as a clean
         // outline at this noise; see `estimate_part`).
         let sibling = m.rival.as_ref().is_some_and(|r| r.ties(&limits) && r.local.map(|l| l.follows()) == Some(Follows::Best));
-        if (m.alone && best.support < p.min_support) || sibling {
+        if m.alone || sibling {
             let near = if sibling {
                 self.clean_tolerance(seen.noise)
             } else {
@@ -752,13 +752,14 @@ impl Estimator {
             let (apart, min_run) = differ::separation(near);
             let placed = differ::Placed { index: &e.index, pose, centroid: tpl.centroid };
             let light = differ::Light::new(seen.frame, seen.brighter, seen.contrast, seen.noise);
-            m.departure = differ::departure(seen.outline_index, placed, Some(&light), seen.excused, false, apart, min_run);
-            // In a region, where the outline leaves the best template may be a neighbour's doing
-            // as well as the part's: the region's outline is then no clean view of the part. The
-            // departure counts as hidden, so that only what is seen followed where the siblings
-            // differ tells ([`Local::follows`]); else the line features decide, as they did before
-            // siblings were compared.
-            if let (true, Some(d), Some(local)) = (sibling, m.departure, m.rival.as_mut().and_then(|r| r.local.as_mut())) {
+            m.departure = differ::departure(seen.outline_index, placed, Some(&light), seen.excused, m.alone, apart, min_run);
+            // In a region with others, where the outline leaves the best template may be a
+            // neighbour's doing as well as the part's: the region's outline is then no clean
+            // view of the part. The departure counts as hidden, so that only what is seen
+            // followed where the siblings differ tells ([`Local::follows`]); else the line
+            // features decide, as they did before siblings were compared. Alone, it is the
+            // part's own outline, as on the separate-part path.
+            if let (true, false, Some(d), Some(local)) = (sibling, m.alone, m.departure, m.rival.as_mut().and_then(|r| r.local.as_mut())) {
                 local.hidden_len += d.len;
                 m.departure = None;
             }
