@@ -879,8 +879,14 @@ impl Estimator {
         // its own template (the fit tolerance and the noise's share of the tolerance, not this
         // outline's residual: a loose fit must not widen what counts as following, or a
         // different part that only resembles the best passes).
-        {
-            let (apart, min_run) = differ::separation(self.clean_tolerance(noise));
+        // Looked for only where one can be: a run of outline farther than `apart` from the
+        // other is farther than the fit's tolerance too, so when the outline the fit left
+        // unexplained on either side is shorter than half a run, there is none (most parts:
+        // the search would cost a tenth of the estimate).
+        let (apart, min_run) = differ::separation(self.clean_tolerance(noise));
+        let perimeter = |pts: &[Pt]| pts.iter().zip(pts.iter().cycle().skip(1)).map(|(a, b)| (*b - *a).norm()).sum::<f64>();
+        let unexplained = (1.0 - best.reg.coverage) * perimeter(&tpl.outline) * pose.scale + (1.0 - best.reg.inliers) * perimeter(&outline);
+        if best.tolerance > apart || unexplained >= 0.5 * min_run {
             let placed = differ::Placed { index: &self.lib.entries[best.entry].index, pose, centroid: tpl.centroid };
             let light = differ::Light::new(frame, brighter, contrast, noise);
             m.departure = differ::departure(&OutlineIndex::of_frame(&outline), placed, Some(&light), &|_| false, true, apart, min_run);
