@@ -231,7 +231,8 @@ impl<'a> Light<'a> {
 /// running where the frame shows no edge). Nor is a run whose enclosed strip (midway between
 /// the two outlines) looks, by its median gray level against the belt's and the part's around
 /// the outline, unlike what it claims: belt where the part has less material, the part's own
-/// where it has more (a stain against a shaded edge is neither).
+/// where it has more (a stain against a shaded edge is neither), unless the part's edge shows
+/// along nearly all of the part's own outline there (a boss whose dark bore the strip crosses).
 pub fn departure(
     part: &OutlineIndex,
     tpl: Placed<'_>,
@@ -296,7 +297,12 @@ pub fn departure(
                 let mid = between.len() / 2;
                 let m = *between.select_nth_unstable_by(mid, f64::total_cmp).1;
                 let belt_like = (m - belt).abs() < (m - body).abs();
-                if belt_like != less_material {
+                // More material whose own outline shows the part's edge along nearly all of it
+                // is the part's, whatever its middle shows (a boss with a dark bore).
+                let edged = !lacks
+                    && !less_material
+                    && 10 * run.points.iter().filter(|&&i| l.shows(own[i], part.normal(i), 0.5 * apart)).count() >= 9 * run.points.len();
+                if belt_like != less_material && !edged {
                     return None;
                 }
             }
@@ -668,6 +674,54 @@ mod tests {
             assert_eq!(d.is_some(), departs, "lug at gray {lug}: {d:?}");
             if let Some(d) = d {
                 assert!(!d.less_material && !d.part_lacks, "{d:?}");
+            }
+        }
+    }
+
+    /// A boss proud of the plate with a dark bore: the strip midway between the outlines runs
+    /// through the bore and looks like belt, but the part's edge shows along the boss's own
+    /// outline nearly all the way: material the template lacks. The same outline around a stain
+    /// (no edge along it) is not.
+    #[test]
+    fn a_boss_with_a_dark_bore_is_material_the_template_lacks() {
+        use crate::vision::frame::GrayImage;
+        let at = pose(200.0, 150.0, 0.0);
+        let (w, h) = (400, 300);
+        let image = |boss: u8| {
+            let mut img = GrayImage::new(w, h, 50);
+            for y in 60..200 {
+                for x in 100..300 {
+                    let r2 = (x as f64 - 200.0).powi(2) + (y as f64 - 100.0).powi(2);
+                    let v = if y >= 100 {
+                        180
+                    } else if r2 < 289.0 && y < 94 {
+                        50
+                    } else if r2 < 484.0 {
+                        boss
+                    } else {
+                        50
+                    };
+                    img.data[y * w + x] = v;
+                }
+            }
+            img
+        };
+        let mut corners = vec![Pt::new(0.0, 0.0)];
+        corners.extend((0..=24).map(|k| {
+            let t = std::f64::consts::PI * k as f64 / 24.0;
+            Pt::new(100.0 - 22.0 * t.cos(), -22.0 * t.sin())
+        }));
+        corners.extend([Pt::new(200.0, 0.0), Pt::new(200.0, 100.0), Pt::new(0.0, 100.0)]);
+        let bossed = crate::vision::geometry::resample_closed(&corners, 2.0);
+        let without = OutlineIndex::new(&plate(0.0));
+        let part = OutlineIndex::of_frame(&bossed.iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
+        for (boss, departs) in [(180, true), (70, false)] {
+            let img = image(boss);
+            let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
+            let d = departure(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
+            assert_eq!(d.is_some(), departs, "boss at gray {boss}: {d:?}");
+            if let Some(d) = d {
+                assert!(!d.less_material && !d.part_lacks && d.depth > 20.0, "{d:?}");
             }
         }
     }
