@@ -27,6 +27,8 @@ mod raw {
         #[serde(default)]
         pub http: Http,
         #[serde(default)]
+        pub opcua: Opcua,
+        #[serde(default)]
         pub camera: Vec<Camera>,
     }
 
@@ -157,6 +159,62 @@ mod raw {
     }
     fn default_http_bind() -> String {
         "127.0.0.1:8080".into()
+    }
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct Opcua {
+        #[serde(default)]
+        pub enabled: bool,
+        #[serde(default = "default_opcua_bind")]
+        pub bind: String,
+        #[serde(default = "default_true")]
+        pub allow_anonymous_read: bool,
+        #[serde(default)]
+        pub pki_dir: Option<String>,
+        #[serde(default)]
+        pub trust_client_certs: bool,
+        #[serde(default = "default_opcua_sessions")]
+        pub max_sessions: i64,
+        #[serde(default = "default_opcua_subscriptions")]
+        pub max_subscriptions_per_session: i64,
+        #[serde(default = "default_opcua_items")]
+        pub max_monitored_items_per_subscription: i64,
+        #[serde(default)]
+        pub users: Vec<OpcuaUser>,
+    }
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct OpcuaUser {
+        pub name: String,
+        pub password_file: String,
+    }
+    fn default_opcua_bind() -> String {
+        "127.0.0.1:4840".into()
+    }
+    fn default_opcua_sessions() -> i64 {
+        32
+    }
+    fn default_opcua_subscriptions() -> i64 {
+        10
+    }
+    fn default_opcua_items() -> i64 {
+        1000
+    }
+    impl Default for Opcua {
+        fn default() -> Self {
+            Self {
+                enabled: false,
+                bind: default_opcua_bind(),
+                allow_anonymous_read: true,
+                pki_dir: None,
+                trust_client_certs: false,
+                max_sessions: default_opcua_sessions(),
+                max_subscriptions_per_session: default_opcua_subscriptions(),
+                max_monitored_items_per_subscription: default_opcua_items(),
+                users: Vec::new(),
+            }
+        }
     }
 
     #[derive(Debug, Deserialize)]
@@ -588,6 +646,46 @@ pub struct HttpConfig {
     pub history_frames: usize,
 }
 
+/// `[opcua]`: the OPC UA server (OPC 40100 machine vision).
+#[derive(Debug, Clone, PartialEq)]
+pub struct OpcuaConfig {
+    /// Address and port of the endpoint (`opc.tcp://HOST:PORT/`).
+    pub bind: SocketAddr,
+    /// Anonymous sessions may browse, read and subscribe (never call a method that changes
+    /// anything).
+    pub allow_anonymous_read: bool,
+    /// Where the application instance certificate and its key are kept (made at first start),
+    /// and the trusted and rejected client certificates.
+    pub pki_dir: PathBuf,
+    /// Trust every client's certificate on the secure endpoints (commissioning only); otherwise
+    /// an unknown one is refused and kept in `<pki_dir>/rejected` until it is moved to
+    /// `<pki_dir>/trusted`.
+    pub trust_client_certs: bool,
+    /// Sessions at once (at least 24: a plant's SCADA, MES and gateways together).
+    pub max_sessions: usize,
+    /// Subscriptions per session.
+    pub max_subscriptions_per_session: usize,
+    /// Monitored items per subscription.
+    pub max_monitored_items_per_subscription: usize,
+    /// Users who may call methods: name and password (read from its file at start-up).
+    pub users: Vec<OpcuaUser>,
+}
+
+/// A user of the OPC UA server, from `[[opcua.users]]`.
+#[derive(Clone, PartialEq)]
+pub struct OpcuaUser {
+    /// The user name a client sends.
+    pub name: String,
+    /// The password, from `password_file` (its first line).
+    pub password: String,
+}
+
+impl std::fmt::Debug for OpcuaUser {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("OpcuaUser").field("name", &self.name).field("password", &"(hidden)").finish()
+    }
+}
+
 /// The validated configuration.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
@@ -603,6 +701,8 @@ pub struct Config {
     pub log_level: String,
     /// The operator view, unless `[http] enabled = false`.
     pub http: Option<HttpConfig>,
+    /// The OPC UA server, when `[opcua] enabled = true`.
+    pub opcua: Option<OpcuaConfig>,
     /// The cameras, each with its own register map.
     pub cameras: Vec<CameraConfig>,
 }
@@ -651,6 +751,7 @@ impl Config {
             return Err(c.err("log.level", format!("{:?}", raw.log.level), format!("is not one of {levels:?}")));
         }
         let http = http_of(&c, &raw.http)?;
+        let opcua = opcua_of(&c, &raw.opcua, base)?;
         if raw.camera.is_empty() {
             return Err(c.err("camera", "[]", "must list at least one [[camera]]"));
         }
@@ -662,7 +763,33 @@ impl Config {
             }
             cameras.push(camera);
         }
-        Ok(Config { path: path.to_path_buf(), modbus, queue_depth, accept_threshold, log_level: raw.log.level.clone(), http, cameras })
+        if let Some(o) = &opcua {
+            for (i, cam) in cameras.iter().enumerate() {
+                if cameras[..i].iter().any(|other| other.name == cam.name) {
+                    return Err(c.err(
+                        format!("camera[{i}].name"),
+                        format!("{:?}", cam.name),
+                        "is another camera's too (OPC UA names each camera's object by it)",
+                    ));
+                }
+            }
+            if let Some(h) = &http
+                && h.bind.port() == o.bind.port()
+                && (h.bind.ip() == o.bind.ip() || h.bind.ip().is_unspecified() || o.bind.ip().is_unspecified())
+            {
+                return Err(c.err("opcua.bind", o.bind, format!("is the operator view's port too ({})", h.bind)));
+            }
+        }
+        Ok(Config {
+            path: path.to_path_buf(),
+            modbus,
+            queue_depth,
+            accept_threshold,
+            log_level: raw.log.level.clone(),
+            http,
+            opcua,
+            cameras,
+        })
     }
 }
 
@@ -704,6 +831,71 @@ fn http_of(c: &Check<'_>, h: &raw::Http) -> Result<Option<HttpConfig>, ConfigErr
         request_timeout: Duration::from_secs_f64(c.real("http.request_timeout_s", h.request_timeout_s, 0.1, 300.0)?),
         history_frames: c.int("http.history_frames", h.history_frames, 0, 1000)?,
     }))
+}
+
+/// `[opcua]`; None unless it is enabled. Passwords are read from their files now, so that a
+/// missing or empty one is named at start-up, not at a client's first call.
+fn opcua_of(c: &Check<'_>, o: &raw::Opcua, base: &Path) -> Result<Option<OpcuaConfig>, ConfigError> {
+    if !o.enabled {
+        return Ok(None);
+    }
+    let bind = o.bind.parse().map_err(|_| c.err("opcua.bind", format!("{:?}", o.bind), "is not an address:port"))?;
+    let pki_dir = match &o.pki_dir {
+        Some(d) => base.join(d),
+        None => default_state_dir().join("pki"),
+    };
+    let mut users: Vec<OpcuaUser> = Vec::new();
+    for (i, u) in o.users.iter().enumerate() {
+        let k = |f: &str| format!("opcua.users[{i}].{f}");
+        if u.name.trim().is_empty() || u.name.len() > 64 {
+            return Err(c.err(k("name"), format!("{:?}", u.name), "must be 1 to 64 characters"));
+        }
+        if users.iter().any(|o| o.name == u.name) {
+            return Err(c.err(k("name"), format!("{:?}", u.name), "is another user's too"));
+        }
+        let file = base.join(&u.password_file);
+        let text = std::fs::read_to_string(&file).map_err(|e| {
+            c.err(k("password_file"), format!("{:?}", u.password_file), format!("cannot be read ({}): {e}", file.display()))
+        })?;
+        let password = text.lines().next().unwrap_or("").to_string();
+        if password.len() < 8 {
+            return Err(c.err(
+                k("password_file"),
+                format!("{:?}", u.password_file),
+                "holds a password shorter than 8 characters (its first line)",
+            ));
+        }
+        users.push(OpcuaUser { name: u.name.clone(), password });
+    }
+    Ok(Some(OpcuaConfig {
+        bind,
+        allow_anonymous_read: o.allow_anonymous_read,
+        pki_dir,
+        trust_client_certs: o.trust_client_certs,
+        max_sessions: c.int("opcua.max_sessions", o.max_sessions, 24, 1000)?,
+        max_subscriptions_per_session: c.int("opcua.max_subscriptions_per_session", o.max_subscriptions_per_session, 1, 100)?,
+        max_monitored_items_per_subscription: c.int(
+            "opcua.max_monitored_items_per_subscription",
+            o.max_monitored_items_per_subscription,
+            1,
+            100_000,
+        )?,
+        users,
+    }))
+}
+
+/// The appliance's state folder when the configuration names none: systemd's
+/// `$STATE_DIRECTORY`, else `$XDG_STATE_HOME/lfi-bridge`, else `~/.local/state/lfi-bridge`
+/// (outside any checkout: a certificate's private key is not source).
+pub fn default_state_dir() -> PathBuf {
+    if let Some(d) = std::env::var_os("STATE_DIRECTORY").filter(|d| !d.is_empty()) {
+        return PathBuf::from(d);
+    }
+    if let Some(d) = std::env::var_os("XDG_STATE_HOME").filter(|d| !d.is_empty()) {
+        return PathBuf::from(d).join("lfi-bridge");
+    }
+    let home = std::env::var_os("HOME").map(PathBuf::from).unwrap_or_else(|| PathBuf::from("."));
+    home.join(".local/state/lfi-bridge")
 }
 
 /// One `[[camera]]` (the `i`-th, as its keys are named), with `accept_threshold` from
@@ -1111,6 +1303,28 @@ mod tests {
         assert_eq!(demo.cameras[0].start().kb, KbSource::Simulator);
         assert_eq!(demo.cameras[0].trigger, Trigger::Modbus);
         assert_eq!(demo.queue_depth, 8);
+    }
+
+    #[test]
+    fn opcua_is_off_by_default_and_its_errors_name_the_key() {
+        let c = Config::from_toml(MIN, Path::new("/etc/lfi/x.toml")).unwrap();
+        assert!(c.opcua.is_none());
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("pw"), "long-enough\nignored\n").unwrap();
+        let text = format!("[opcua]\nenabled = true\npki_dir = \"pki\"\n[[opcua.users]]\nname = \"mes\"\npassword_file = \"pw\"\n{MIN}");
+        let c = Config::from_toml(&text, &dir.path().join("x.toml")).unwrap();
+        let o = c.opcua.expect("enabled");
+        assert_eq!(o.bind, "127.0.0.1:4840".parse().unwrap());
+        assert_eq!(o.pki_dir, dir.path().join("pki"));
+        assert!(o.allow_anonymous_read && o.max_sessions >= 24);
+        assert_eq!((o.users[0].name.as_str(), o.users[0].password.as_str()), ("mes", "long-enough"));
+        assert!(!format!("{:?}", o.users[0]).contains("long-enough"), "a password in a log line");
+        let e = err(&format!("[opcua]\nenabled = true\n[[opcua.users]]\nname = \"mes\"\npassword_file = \"nowhere.pw\"\n{MIN}"));
+        assert!(e.contains("opcua.users[0].password_file") && e.contains("/etc/lfi/nowhere.pw"), "{e}");
+        let e = err(&format!("[opcua]\nenabled = true\nmax_sessions = 4\n{MIN}"));
+        assert!(e.contains("opcua.max_sessions = 4") && e.contains("24..="), "{e}");
+        let e = err(&format!("[http]\nbind = \"0.0.0.0:4840\"\n[opcua]\nenabled = true\n{MIN}"));
+        assert!(e.contains("opcua.bind") && e.contains("operator view"), "{e}");
     }
 
     #[test]

@@ -638,6 +638,80 @@ impl Handshake {
     pub fn set_types_enrolled(&mut self, n: u16) {
         self.settings.types_enrolled = n;
     }
+
+    /// The camera's state as a vision system (OPC 40100's state machines), decided here from
+    /// the same flags STATUS shows, so that OPC UA and the PLC never tell two stories. A
+    /// camera never seen working is still starting; ERROR outranks offline (the fault is what
+    /// needs a hand); inside Operational, `free_run` is continuous execution.
+    pub fn vision_state(&self, free_run: bool) -> VisionState {
+        if !self.camera_seen {
+            VisionState::Preoperational
+        } else if self.error {
+            VisionState::Error
+        } else if !self.online {
+            VisionState::Halted
+        } else if self.jobs_pending > 0 || !self.camera_ok {
+            // Online without a fault but not taking frames: a job being changed, the camera
+            // lost (not yet a fault).
+            VisionState::Operational(AutoMode::Initialized)
+        } else if free_run {
+            VisionState::Operational(AutoMode::ContinuousExecution)
+        } else if self.busy.is_some() {
+            VisionState::Operational(AutoMode::SingleExecution)
+        } else {
+            VisionState::Operational(AutoMode::Ready)
+        }
+    }
+}
+
+/// The top state of a vision system (OPC 40100-1's VisionStateMachineType).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VisionState {
+    /// Starting, or no camera seen yet.
+    Preoperational,
+    /// Offline (ONLINE = 0): triggers are not taken.
+    Halted,
+    /// ERROR is set until CLEAR_ERROR.
+    Error,
+    /// Taking triggers, in the automatic mode's state.
+    Operational(AutoMode),
+}
+
+/// The automatic mode's state inside Operational (VisionAutomaticModeStateMachineType).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AutoMode {
+    /// Online but not ready (a job change running, the camera lost without a fault yet).
+    Initialized,
+    /// READY: a trigger starts an acquisition.
+    Ready,
+    /// A triggered frame is being processed (BUSY).
+    SingleExecution,
+    /// A free-running camera takes every frame.
+    ContinuousExecution,
+}
+
+impl VisionState {
+    /// The state's browse name in the companion specification.
+    pub fn name(self) -> &'static str {
+        match self {
+            VisionState::Preoperational => "Preoperational",
+            VisionState::Halted => "Halted",
+            VisionState::Error => "Error",
+            VisionState::Operational(_) => "Operational",
+        }
+    }
+}
+
+impl AutoMode {
+    /// The state's browse name in the companion specification.
+    pub fn name(self) -> &'static str {
+        match self {
+            AutoMode::Initialized => "Initialized",
+            AutoMode::Ready => "Ready",
+            AutoMode::SingleExecution => "SingleExecution",
+            AutoMode::ContinuousExecution => "ContinuousExecution",
+        }
+    }
 }
 
 fn no_part(reason: Reason) -> PartResult {

@@ -17,6 +17,7 @@ pub mod kb;
 pub mod lens;
 pub mod logging;
 pub mod modbus;
+pub mod opcua;
 pub mod overlay;
 pub mod plate;
 pub mod registers;
@@ -32,6 +33,11 @@ pub async fn start(cfg: &config::Config) -> Result<appliance::Running, appliance
     let mut running = appliance::start(cfg).await?;
     if let Some(h) = &cfg.http {
         http::attach(&mut running, h).await?;
+    }
+    if let Some(o) = &cfg.opcua {
+        let triggers = cfg.cameras.iter().map(|c| c.trigger).collect();
+        let url = opcua::attach(&mut running, o, triggers).await?;
+        running.opcua_url = Some(url);
     }
     Ok(running)
 }

@@ -456,3 +456,32 @@ fn user_data_follows_the_float_word_order() {
     assert_eq!(h.read(219, 2), vec![0x5678, 0x1234]);
     assert_eq!(h.word(addr::BOOT_ID), 77);
 }
+
+/// OPC UA's vision state follows the flags STATUS shows: never seen a camera, preoperational;
+/// ERROR outranks offline; a trigger makes single execution until the frame completes; a
+/// job change is initialised; free-run is continuous.
+#[test]
+fn the_vision_state_follows_status() {
+    use lfi_bridge::handshake::{AutoMode, VisionState};
+    let mut h = hs(4);
+    assert_eq!(h.vision_state(false), VisionState::Preoperational);
+    h.set_camera_ok(true);
+    assert_eq!(h.vision_state(false), VisionState::Operational(AutoMode::Ready));
+    assert_eq!(h.vision_state(true), VisionState::Operational(AutoMode::ContinuousExecution));
+    let acq = trigger(&mut h, 10).expect("an acquisition");
+    assert_eq!(h.vision_state(false), VisionState::Operational(AutoMode::SingleExecution));
+    h.complete(acq, Outcome::Parts { parts: vec![part(1, 5.0)], processing_ms: 3.0 }, ms(20));
+    assert_eq!(h.vision_state(false), VisionState::Operational(AutoMode::Ready));
+    h.write(addr::ONLINE, 0, ms(30));
+    assert_eq!(h.vision_state(false), VisionState::Halted);
+    h.set_camera_ok(false); // seen working, then lost: a camera fault
+    assert_eq!(h.vision_state(false), VisionState::Error);
+    h.set_camera_ok(true);
+    h.write(addr::CLEAR_ERROR, 1, ms(40));
+    assert_eq!(h.vision_state(false), VisionState::Halted);
+    h.write(addr::ONLINE, 1, ms(50));
+    h.write(addr::JOB_REQUEST, 2, ms(60));
+    assert_eq!(h.vision_state(false), VisionState::Operational(AutoMode::Initialized));
+    h.job_changed(2, JobOutcome::InForce { expected_type: None });
+    assert_eq!(h.vision_state(false), VisionState::Operational(AutoMode::Ready));
+}

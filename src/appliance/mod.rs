@@ -73,6 +73,12 @@ pub enum StartError {
         /// Why the system refused it.
         source: std::io::Error,
     },
+    /// The OPC UA server cannot be set up (its PKI folder, its information model).
+    #[error("OPC UA: {message}")]
+    Opcua {
+        /// What went wrong, naming the file or node.
+        message: String,
+    },
     /// The PLC's port is taken or not ours.
     #[error("cannot listen for Modbus on {addr}")]
     Bind {
@@ -126,6 +132,8 @@ pub struct Running {
     pub modbus_addr: SocketAddr,
     /// The operator view's address, once [`crate::http::attach`] has started it.
     pub http_addr: Option<SocketAddr>,
+    /// The OPC UA endpoint, once [`crate::opcua::attach`] has started it.
+    pub opcua_url: Option<String>,
     /// Every camera, in configuration order.
     pub cameras: Arc<Vec<CameraHandle>>,
     /// The Modbus unit ids the server answers, and their handshakes.
@@ -400,7 +408,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
         tasks.push(tokio::spawn(crate::robot::link::run(name, rc, rx, view, shutdown.clone())));
     }
     let cameras = Arc::new(cameras);
-    Ok(Running { modbus_addr, http_addr: None, cameras, stations, stats, started, shutdown, stop, tasks })
+    Ok(Running { modbus_addr, http_addr: None, opcua_url: None, cameras, stations, stats, started, shutdown, stop, tasks })
 }
 
 /// Bumped whenever something the operator view shows changes (a frame, a fault, a history
