@@ -240,6 +240,11 @@ pub fn angle_word(deg: f64) -> u16 {
     i16_word(a * 100.0)
 }
 
+/// Angle in degrees as ANGLE_F32 holds it: -180 <= a < 180, single precision.
+pub fn angle_f32(deg: f64) -> f32 {
+    ((deg + 180.0).rem_euclid(360.0) - 180.0) as f32
+}
+
 impl Handshake {
     /// A handshake at power-up: nothing queued, no acquisition running.
     pub fn new(settings: Settings) -> Self {
@@ -342,6 +347,10 @@ impl Handshake {
     pub fn busy(&self) -> bool {
         self.busy.is_some()
     }
+    /// The ACQ_ID of the acquisition running, if one is.
+    pub fn running(&self) -> Option<u16> {
+        self.busy.map(|(id, _, _)| id)
+    }
 
     /// The value of one register (reserved addresses read 0).
     pub fn word(&self, a: u16) -> u16 {
@@ -401,7 +410,7 @@ impl Handshake {
                     addr::CONFIDENCE => u16_word(p.confidence * 1000.0).min(1000),
                     addr::PART_INDEX => q.index,
                     addr::PART_COUNT => q.count,
-                    212 | 213 => float(((p.angle_deg + 180.0).rem_euclid(360.0) - 180.0) as f32, a == 213),
+                    212 | 213 => float(angle_f32(p.angle_deg), a == 213),
                     214 | 215 => float(p.x_mm as f32, a == 215),
                     216 | 217 => float(p.y_mm as f32, a == 217),
                     addr::PROCESSING_TIME => u16_word(q.processing_ms * 10.0),

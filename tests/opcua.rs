@@ -199,3 +199,148 @@ async fn session_type_definition(session: &Session, node: &NodeId) -> NodeId {
     let refs = r[0].references.clone().unwrap_or_default();
     refs.first().expect("a type definition").node_id.node_id.clone()
 }
+
+/// The PLC's result block, every queued result in order (acknowledging each): (ACQ_ID,
+/// PART_INDEX, PART_COUNT, TYPE_ID, DECISION, REASON, ANGLE_F32, X_F32, Y_F32).
+async fn plc_results(ctx: &mut tokio_modbus::client::Context) -> Vec<(u16, u16, u16, u16, u16, u16, f32, f32, f32)> {
+    let mut out = Vec::new();
+    while read(ctx, addr::RESULTS_PENDING, 1).await[0] > 0 {
+        let b = read(ctx, addr::RESULT_SEQ, 21).await;
+        let f = |i: usize| f32::from_bits(((b[i] as u32) << 16) | b[i + 1] as u32);
+        out.push((b[1], b[10], b[11], b[4], b[2], b[3], f(12), f(14), f(16)));
+        write(ctx, addr::RESULT_ACK, b[0]).await;
+    }
+    out
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn start_single_job_raises_result_ready_with_the_parts_the_plc_reads() {
+    use async_opcua::client::{EventCallback, custom_types::DataTypeTreeBuilder};
+    use async_opcua::types::custom::{DynamicStructure, DynamicTypeLoader};
+    use async_opcua::types::{ContentFilter, EventFilter, ExtensionObject, MonitoredItemCreateRequest, SimpleAttributeOperand};
+    let dir = tempfile::tempdir().unwrap();
+    let running = appliance(dir.path(), true).await;
+    let url = running.opcua_url.clone().expect("OPC UA enabled");
+    let user = session(&url, dir.path(), Some(("scada", PASSWORD))).await.expect("user session");
+    let (mv, di, own) = (namespace(&user, MV).await, namespace(&user, DI).await, namespace(&user, "urn:lfi-bridge:vision").await);
+    // The structures as the server describes them (what a generic client does).
+    let tree = Arc::new(DataTypeTreeBuilder::new(|_| true).build(&user).await.expect("the server's data types"));
+    user.add_type_loader(Arc::new(DynamicTypeLoader::new(tree.clone())));
+    let id_struct = |type_id: u32, id: &str| {
+        let info = tree.get_struct_type(&NodeId::new(mv, type_id)).expect("a MachineVision structure").clone();
+        let values = info.fields.iter().map(|f| if f.name == "Id" { Variant::from(id) } else { Variant::Empty }).collect();
+        Variant::from(ExtensionObject::from_message(DynamicStructure::new_struct(info, tree.clone(), values).expect("valid")))
+    };
+
+    let system = browse_to(&user, &[(di, "DeviceSet"), (own, "line3")]).await;
+    let auto = browse_to(&user, &[(di, "DeviceSet"), (own, "line3"), (mv, "VisionStateMachine"), (mv, "AutomaticModeStateMachine")]).await;
+    let start = browse_to(
+        &user,
+        &[(di, "DeviceSet"), (own, "line3"), (mv, "VisionStateMachine"), (mv, "AutomaticModeStateMachine"), (mv, "StartSingleJob")],
+    )
+    .await;
+    wait_state(
+        &user,
+        &browse_to(
+            &user,
+            &[(di, "DeviceSet"), (own, "line3"), (mv, "VisionStateMachine"), (mv, "AutomaticModeStateMachine"), (0, "CurrentState")],
+        )
+        .await,
+        "Ready",
+    )
+    .await;
+
+    // Every ResultReady of the camera's object: its JobId, MeasId and content.
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Vec<Variant>>();
+    let sub = user
+        .create_subscription(
+            Duration::from_millis(50),
+            100,
+            20,
+            1000,
+            0,
+            true,
+            EventCallback::new(move |fields, _| {
+                let _ = tx.send(fields.unwrap_or_default());
+            }),
+        )
+        .await
+        .expect("subscription");
+    let field = |name: &str| SimpleAttributeOperand {
+        type_definition_id: NodeId::new(mv, 1024u32),
+        browse_path: Some(vec![QualifiedName::new(mv, name)]),
+        attribute_id: async_opcua::types::AttributeId::Value as u32,
+        index_range: async_opcua::types::NumericRange::None,
+    };
+    let filter = EventFilter {
+        where_clause: ContentFilter { elements: None },
+        select_clauses: Some(vec![field("JobId"), field("MeasId"), field("ResultContent")]),
+    };
+    let mut item: MonitoredItemCreateRequest = system.clone().into();
+    item.item_to_monitor.attribute_id = async_opcua::types::AttributeId::EventNotifier as u32;
+    item.requested_parameters.queue_size = 10;
+    item.requested_parameters.filter = ExtensionObject::from_message(filter);
+    let r = user.create_monitored_items(sub, TimestampsToReturn::Neither, vec![item]).await.expect("monitored item");
+    assert!(r[0].result.status_code.is_good(), "{:?}", r[0].result.status_code);
+
+    let call = CallMethodRequest {
+        object_id: auto.clone(),
+        method_id: start.clone(),
+        input_arguments: Some(vec![
+            id_struct(3015, "M-17"),
+            id_struct(3004, "P-9"),
+            id_struct(3002, ""),
+            id_struct(3003, ""),
+            Variant::Array(Box::new(
+                async_opcua::types::Array::new(async_opcua::types::VariantScalarTypeId::ExtensionObject, Vec::<Variant>::new()).unwrap(),
+            )),
+        ]),
+    };
+    let r = user.call_one(call).await.expect("call answered");
+    assert_eq!(r.status_code, StatusCode::Good, "{r:?}");
+    let outputs = r.output_arguments.unwrap_or_default();
+    let job = match &outputs[0] {
+        Variant::ExtensionObject(o) => o.inner_as::<DynamicStructure>().and_then(|s| s.get_field_by_name("Id").cloned()),
+        _ => None,
+    };
+    let Some(Variant::String(job)) = job else { panic!("JobId is {outputs:?}") };
+    let job = job.as_ref().to_string();
+
+    let fields = tokio::time::timeout(Duration::from_secs(10), rx.recv()).await.expect("a ResultReady within 10 s").expect("event");
+    let id_of = |v: &Variant| match v {
+        Variant::ExtensionObject(o) => o.inner_as::<DynamicStructure>().and_then(|s| s.get_field_by_name("Id").cloned()),
+        _ => None,
+    };
+    assert_eq!(id_of(&fields[0]), Some(Variant::from(job.as_str())), "the event's JobId is the call's");
+    assert_eq!(id_of(&fields[1]), Some(Variant::from("M-17")), "MeasId comes back");
+    let Variant::Array(content) = &fields[2] else { panic!("ResultContent is {:?}", fields[2]) };
+    let parts: Vec<serde_json::Value> = content
+        .values
+        .iter()
+        .map(|v| match v {
+            Variant::String(s) => serde_json::from_str(s.as_ref()).expect("JSON"),
+            other => panic!("a content element is {other:?}"),
+        })
+        .collect();
+
+    let mut plc_ctx = plc(running.modbus_addr, 1).await;
+    let block = plc_results(&mut plc_ctx).await;
+    let plc_parts: Vec<_> = block.iter().filter(|r| r.1 > 0).collect();
+    assert_eq!(parts.len(), plc_parts.len(), "parts: OPC UA {parts:?}, PLC {block:?}");
+    assert!(!parts.is_empty(), "the scene has parts");
+    for (p, r) in parts.iter().zip(&plc_parts) {
+        assert_eq!(p["acq_id"], r.0);
+        assert_eq!(p["part_index"], r.1);
+        assert_eq!(p["part_count"], r.2);
+        assert_eq!(p["type_id"], r.3);
+        assert_eq!(p["decision"], if r.4 == 1 { "accept" } else { "reject" }, "{p}");
+        assert_eq!(p["reason_code"], r.5);
+        assert_eq!(p["angle_deg"].as_f64().unwrap() as f32, r.6);
+        assert_eq!(p["x_mm"].as_f64().unwrap() as f32, r.7);
+        assert_eq!(p["y_mm"].as_f64().unwrap() as f32, r.8);
+        assert_eq!(p["job_id"], job.as_str());
+        assert_eq!((p["meas_id"].as_str(), p["part_id"].as_str()), (Some("M-17"), Some("P-9")));
+    }
+    let _ = user.disconnect().await;
+    running.stop().await;
+}

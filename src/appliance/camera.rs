@@ -77,6 +77,112 @@ pub struct Live {
     pub frame_acq_id: u16,
 }
 
+/// An acquisition's final results as published beyond the PLC (OPC UA's ResultReady): the
+/// parts the PLC reads, in its order, with its values.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Acquisition {
+    /// ACQ_ID.
+    pub acq_id: u16,
+    /// The job in force when the frame was estimated.
+    pub job_id: u16,
+    /// USER_DATA as latched when the frame was taken.
+    pub user_data: u32,
+    /// When the results were final.
+    #[serde(skip)]
+    pub at: std::time::SystemTime,
+    /// PROCESSING_TIME, ms.
+    pub processing_ms: f64,
+    /// Every part, in picking order (empty: no part, or no usable frame).
+    pub parts: Vec<ResultPart>,
+    /// Why there was no usable frame, if there was none.
+    pub error: Option<String>,
+}
+
+/// One part of an [`Acquisition`], with the values of the PLC's registers.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ResultPart {
+    /// ACQ_ID.
+    pub acq_id: u16,
+    /// PART_INDEX (1-based, picking order).
+    pub part_index: u16,
+    /// PART_COUNT.
+    pub part_count: u16,
+    /// TYPE_ID (0 unknown).
+    pub type_id: u16,
+    /// The type's name, if one was named.
+    pub type_name: Option<String>,
+    /// "up" or "down", if a type was named.
+    pub face: Option<&'static str>,
+    /// ANGLE_F32.
+    pub angle_deg: f32,
+    /// X_F32, mm in the robot frame.
+    pub x_mm: f32,
+    /// Y_F32.
+    pub y_mm: f32,
+    /// Pick point in the frame, pixels.
+    pub x_px: f64,
+    /// See `x_px`.
+    pub y_px: f64,
+    /// "accept" or "reject".
+    pub decision: &'static str,
+    /// REASON as text.
+    pub reason: &'static str,
+    /// REASON's code.
+    pub reason_code: u16,
+    /// CONFIDENCE (as the register: thousandths).
+    pub confidence: f64,
+}
+
+impl Acquisition {
+    /// The record of a completed acquisition: `results` as the handshake queued them, `fe` the
+    /// estimate with its parts in the same order (None: no usable frame).
+    pub fn of(acq_id: u16, job_id: u16, results: &[Queued], fe: Option<&FrameEstimate>, error: Option<String>) -> Self {
+        let estimates = fe.map(|fe| fe.parts.as_slice()).unwrap_or(&[]);
+        let parts = results
+            .iter()
+            .filter(|r| r.is_part())
+            .enumerate()
+            .map(|(i, r)| {
+                let p = estimates.get(i);
+                ResultPart {
+                    acq_id: r.acq_id,
+                    part_index: r.index,
+                    part_count: r.count,
+                    type_id: r.part.type_id,
+                    type_name: p.and_then(|p| p.type_name.clone()),
+                    face: match r.part.face {
+                        1 => Some("up"),
+                        2 => Some("down"),
+                        _ => None,
+                    },
+                    angle_deg: crate::handshake::angle_f32(r.part.angle_deg),
+                    x_mm: r.part.x_mm as f32,
+                    y_mm: r.part.y_mm as f32,
+                    x_px: p.map_or(f64::NAN, |p| p.x),
+                    y_px: p.map_or(f64::NAN, |p| p.y),
+                    decision: if r.part.accepted { "accept" } else { "reject" },
+                    reason: r.part.reason.as_str(),
+                    reason_code: r.part.reason.code(),
+                    confidence: (r.part.confidence * 1000.0).round().clamp(0.0, 1000.0) / 1000.0,
+                }
+            })
+            .collect();
+        let first = results.first();
+        Acquisition {
+            acq_id,
+            job_id,
+            user_data: first.map_or(0, |r| r.user_data),
+            at: std::time::SystemTime::now(),
+            processing_ms: first.map_or(0.0, |r| r.processing_ms),
+            parts,
+            error,
+        }
+    }
+}
+
+/// Where a camera's acquisitions are published (OPC UA subscribes; nobody need listen).
+pub type Published = tokio::sync::broadcast::Sender<std::sync::Arc<Acquisition>>;
+
 /// Everything a worker needs.
 pub(crate) struct Worker {
     pub name: String,
@@ -106,6 +212,8 @@ pub(crate) struct Worker {
     pub in_force: Arc<Mutex<InForce>>,
     /// The job in force's templates (the operator view lists them; enrolment adds to them).
     pub templates: Arc<Mutex<crate::kb::KnowledgeBase>>,
+    /// Every completed acquisition, for OPC UA.
+    pub published: Published,
 }
 
 impl Worker {
@@ -294,6 +402,13 @@ impl Worker {
                 let job_id = self.in_force.lock().unwrap_or_else(|p| p.into_inner()).id;
                 archive.offer(archive_item(&self.name, archive.unit_id(), acq_id, job_id, &results, image, label, fe, error));
             }
+        }
+        if !results.is_empty() && self.published.receiver_count() > 0 {
+            let job_id = self.in_force.lock().unwrap_or_else(|p| p.into_inner()).id;
+            let error = if estimated.is_some() { None } else { self.live.lock().unwrap_or_else(|p| p.into_inner()).last_error.clone() };
+            let fe = estimated.as_ref().map(|(_, _, fe)| fe);
+            // A receiver too slow to keep up loses the oldest; it says so when it reads.
+            let _ = self.published.send(Arc::new(Acquisition::of(acq_id, job_id, &results, fe, error)));
         }
         let cycle = t0.elapsed().as_secs_f64() * 1e3;
         if let Some(history) = &self.history

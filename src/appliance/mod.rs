@@ -121,6 +121,8 @@ pub struct CameraHandle {
     pub genicam: Option<Arc<genicam::GenicamStats>>,
     /// The configured jobs (id, name), for the operator view.
     pub jobs: Vec<(u16, String)>,
+    /// Every completed acquisition, as the PLC got it (subscribe for OPC UA's events).
+    pub published: camera::Published,
     /// Into the camera's worker, as the Modbus server sends (job changes from the page).
     commands: std::sync::mpsc::Sender<crate::handshake::Command>,
     thread: Mutex<Option<std::thread::JoinHandle<()>>>,
@@ -313,6 +315,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
         } else {
             (None, None)
         };
+        let published: camera::Published = tokio::sync::broadcast::channel(256).0;
         let worker = Worker {
             name: cam.name.clone(),
             trigger: cam.trigger,
@@ -335,6 +338,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             base_params: params.clone(),
             in_force: in_force.clone(),
             templates: templates.clone(),
+            published: published.clone(),
         };
         let thread =
             std::thread::Builder::new().name(format!("camera-{}", cam.unit_id)).spawn(move || worker.run()).expect("spawn camera thread");
@@ -360,6 +364,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
             genicam,
             commands: tx.clone(),
             jobs: cam.jobs.iter().map(|j| (j.id, j.name.clone())).collect(),
+            published,
             thread: Mutex::new(Some(thread)),
         });
     }
@@ -469,6 +474,38 @@ impl CameraHandle {
             self.commands.send(c).map_err(|_| ControlError::Stopped)?;
         }
         Ok(())
+    }
+}
+
+impl CameraHandle {
+    /// One trigger, as a PLC's TRIGGER edge (1 then 0, the same checks): the ACQ_ID of the
+    /// acquisition it started, or None when the camera was not READY (counted as missed, as
+    /// the PLC's would be).
+    /// `before_start` hears the ACQ_ID before the worker is told (whatever must be in place when
+    /// the results come).
+    pub fn trigger_as_plc(&self, before_start: impl FnOnce(u16)) -> Result<Option<u16>, ControlError> {
+        let now = self.started.elapsed();
+        let mut commands = Vec::new();
+        let started =
+            {
+                let mut hs = self.handshake.lock().unwrap_or_else(|p| p.into_inner());
+                let before = hs.counters().acquisitions;
+                for v in [1, 0] {
+                    let request = tokio_modbus::Request::WriteSingleRegister(crate::registers::addr::TRIGGER, v);
+                    let (_, c) = crate::modbus::service::handle(&mut hs, &request, true, now)
+                        .map_err(|exception| ControlError::Refused { name: "TRIGGER", value: v, exception })?;
+                    commands.extend(c);
+                }
+                if hs.counters().acquisitions > before { hs.running() } else { None }
+            };
+        if let Some(acq_id) = started {
+            before_start(acq_id);
+        }
+        bump(&self.changes);
+        for c in commands {
+            self.commands.send(c).map_err(|_| ControlError::Stopped)?;
+        }
+        Ok(started)
     }
 }
 

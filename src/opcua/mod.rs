@@ -7,14 +7,17 @@
 
 pub mod auth;
 pub mod model;
+pub mod results;
+pub mod types;
 
+use std::collections::HashMap;
 use std::net::SocketAddr;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Duration;
 
 use async_opcua::server::node_manager::memory::{InMemoryNodeManager, InMemoryNodeManagerBuilder};
 use async_opcua::server::{ServerBuilder, ServerEndpoint};
-use async_opcua::types::{AttributeId, StatusCode, Variant};
+use async_opcua::types::{AttributeId, NodeId, StatusCode, Variant};
 
 use crate::appliance::{CameraHandle, Running, StartError};
 use crate::config::{OpcuaConfig, Trigger};
@@ -46,12 +49,23 @@ pub async fn attach(running: &mut Running, cfg: &OpcuaConfig, triggers: Vec<Trig
     std::fs::create_dir_all(&cfg.pki_dir)
         .map_err(|source| StartError::Opcua { message: format!("cannot make the PKI folder {}: {source}", cfg.pki_dir.display()) })?;
     let cameras = running.cameras.clone();
+    let types = Arc::new(types::LateTypes::default());
+    let shell = Arc::new(Shell {
+        cameras: cameras.clone(),
+        types: types.clone(),
+        triggers: triggers.clone(),
+        pending: Mutex::new(HashMap::new()),
+        mv: OnceLock::new(),
+    });
     let handler: model::Handler = {
-        let cameras = cameras.clone();
-        Arc::new(move |camera, call, args, user| handle(&cameras[camera], call, args, user))
+        let shell = shell.clone();
+        Arc::new(move |camera, call, args, user| shell.call(camera, call, args, user))
     };
+    // Subscribed now, before any acquisition the server should report.
+    let feeds: Vec<_> = cameras.iter().map(|c| c.published.subscribe()).collect();
     let imports = model::imports().map_err(|message| StartError::Opcua { message })?;
     let (server, handle) = builder(cfg, addr)
+        .with_type_loader(types.clone())
         .with_node_manager(InMemoryNodeManagerBuilder::new(Vision::build(imports, handler)))
         .with_authenticator(Arc::new(auth::Users::new(cfg.users.clone(), cfg.allow_anonymous_read)))
         .build()
@@ -66,6 +80,9 @@ pub async fn attach(running: &mut Running, cfg: &OpcuaConfig, triggers: Vec<Trig
         for (i, c) in cameras.iter().enumerate() {
             nodes.push(model::add_camera(&manager, &*tt, i, &c.name).map_err(|message| StartError::Opcua { message })?);
         }
+        let mv =
+            handle.get_namespace_index(model::MV_URI).ok_or_else(|| StartError::Opcua { message: "no MachineVision namespace".into() })?;
+        let _ = shell.mv.set(mv);
     }
     tracing::info!(
         "OPC UA server on {url} ({} vision system(s) under Objects/DeviceSet; anonymous {}; {} user(s); PKI {})",
@@ -88,13 +105,16 @@ pub async fn attach(running: &mut Running, cfg: &OpcuaConfig, triggers: Vec<Trig
                     Ok(l) => l,
                     Err(e) => return tracing::error!("OPC UA server not started: {e}"),
                 };
-                let updates = follow_states(&manager, &handle, &cameras, &nodes, &triggers, shutdown.clone());
+                let updates = follow_states(&manager, &handle, &shell, &nodes, shutdown.clone());
+                let events = futures_util::future::join_all(
+                    feeds.into_iter().enumerate().map(|(i, feed)| report_results(&shell, &handle, &nodes[i], i, feed, shutdown.clone())),
+                );
                 let cancel = handle.token().clone();
                 let stop = async move {
                     shutdown.cancelled().await;
                     cancel.cancel();
                 };
-                let (served, _, _) = tokio::join!(server.run_with(listener), updates, stop);
+                let (served, _, _, _) = tokio::join!(server.run_with(listener), updates, events, stop);
                 if let Err(e) = served {
                     tracing::error!("OPC UA server stopped: {e}");
                 }
@@ -146,20 +166,39 @@ fn builder(cfg: &OpcuaConfig, addr: SocketAddr) -> ServerBuilder {
 async fn follow_states(
     manager: &InMemoryNodeManager<Vision>,
     handle: &async_opcua::server::ServerHandle,
-    cameras: &[CameraHandle],
+    shell: &Shell,
     nodes: &[CameraNodes],
-    triggers: &[Trigger],
     shutdown: tokio_util::sync::CancellationToken,
 ) {
+    let cameras = &shell.cameras;
     let mut last = vec![None; cameras.len()];
+    let mut types_failed = false;
     let mut tick = tokio::time::interval(STATE_PERIOD);
     loop {
         tokio::select! {
             _ = shutdown.cancelled() => break,
             _ = tick.tick() => {}
         }
+        // The MachineVision structures, once the running server's type tree holds them (a
+        // call with one of them as an argument is refused as undecodable until then).
+        if !types_failed
+            && !shell.types.ready()
+            && let Some(&mv) = shell.mv.get()
+        {
+            let filled = shell.types.fill(&manager.address_space().read(), &handle.type_tree().read(), mv);
+            match filled {
+                Ok(true) => tracing::debug!("OPC UA: MachineVision structure types loaded"),
+                Ok(false) => {}
+                Err(e) => {
+                    tracing::error!(
+                        "OPC UA: the MachineVision structure types cannot be loaded (StartSingleJob and ResultReady's identifiers will fail): {e}"
+                    );
+                    types_failed = true;
+                }
+            }
+        }
         for (i, cam) in cameras.iter().enumerate() {
-            let free_run = triggers.get(i) == Some(&Trigger::FreeRun);
+            let free_run = shell.triggers.get(i) == Some(&Trigger::FreeRun);
             let state = cam.handshake.lock().unwrap_or_else(|p| p.into_inner()).vision_state(free_run);
             if last[i] == Some(state) {
                 continue;
@@ -175,21 +214,124 @@ async fn follow_states(
     }
 }
 
-/// A method call on camera `cam`, carried out as the PLC's register write would be.
-fn handle(cam: &CameraHandle, call: Call, _args: &[Variant], user: &str) -> Result<Vec<Variant>, StatusCode> {
-    let (register, value) = match call {
-        Call::Halt => (addr::ONLINE, 0),
-        Call::Reset => (addr::CLEAR_ERROR, 1),
-        Call::SelectModeAutomatic => (addr::ONLINE, 1),
-    };
-    match cam.write_as_plc(register, value) {
-        Ok(()) => {
-            tracing::info!(camera = %cam.name, user, "OPC UA {call:?}");
-            Ok(Vec::new())
+/// What method calls and result reports share.
+struct Shell {
+    cameras: Arc<Vec<CameraHandle>>,
+    types: Arc<types::LateTypes>,
+    triggers: Vec<Trigger>,
+    /// What StartSingleJob asked to come back with an acquisition's results, by (camera,
+    /// ACQ_ID): entered before the acquisition starts, taken when its results are reported.
+    pending: Mutex<HashMap<(usize, u16), results::Ids>>,
+    /// The MachineVision namespace's index.
+    mv: OnceLock<u16>,
+}
+
+impl Shell {
+    /// A method call on camera `camera`, carried out as the PLC's register writes would be.
+    fn call(&self, camera: usize, call: Call, args: &[Variant], user: &str) -> Result<Vec<Variant>, StatusCode> {
+        let cam = &self.cameras[camera];
+        let free_run = self.triggers.get(camera) == Some(&Trigger::FreeRun);
+        let write = |register: u16, value: u16| match cam.write_as_plc(register, value) {
+            Ok(()) => {
+                tracing::info!(camera = %cam.name, user, "OPC UA {call:?}");
+                Ok(Vec::new())
+            }
+            Err(e) => {
+                tracing::warn!(camera = %cam.name, user, "OPC UA {call:?} refused: {e}");
+                Err(StatusCode::BadInvalidState)
+            }
+        };
+        match call {
+            Call::Halt => write(addr::ONLINE, 0),
+            Call::Reset => write(addr::CLEAR_ERROR, 1),
+            Call::SelectModeAutomatic => write(addr::ONLINE, 1),
+            // A free-running camera's continuous execution stops by going offline; a triggered
+            // camera's single job is one frame, finished within its cycle: nothing to stop.
+            Call::Stop | Call::Abort if free_run => write(addr::ONLINE, 0),
+            Call::Stop | Call::Abort => {
+                tracing::info!(camera = %cam.name, user, "OPC UA {call:?}: no continuous execution to stop");
+                Ok(vec![Variant::from(0i32)])
+            }
+            Call::StartSingleJob => self.start_single_job(camera, args, user),
         }
-        Err(e) => {
-            tracing::warn!(camera = %cam.name, user, "OPC UA {call:?} refused: {e}");
-            Err(StatusCode::BadInvalidState)
+    }
+
+    /// StartSingleJob(MeasId, PartId, RecipeId, ProductId, Parameters) -> (JobId, Error): one
+    /// trigger of the job in force (an empty RecipeId; otherwise it must name the job in force,
+    /// as JOB_ID). MeasId and PartId come back with the results.
+    fn start_single_job(&self, camera: usize, args: &[Variant], user: &str) -> Result<Vec<Variant>, StatusCode> {
+        let cam = &self.cameras[camera];
+        let arg = |i: usize, f: &str| args.get(i).map(|v| types::field(v, f)).unwrap_or_default();
+        let ids = results::Ids { meas_id: arg(0, "Id"), part_id: arg(1, "Id") };
+        let (recipe, product) = (arg(2, "Id"), arg(3, "Id"));
+        let (job_in_force, boot_id) = {
+            let hs = cam.handshake.lock().unwrap_or_else(|p| p.into_inner());
+            (hs.job_id(), hs.settings().boot_id)
+        };
+        if !recipe.is_empty() && recipe != job_in_force.to_string() {
+            tracing::warn!(camera = %cam.name, user, "OPC UA StartSingleJob refused: recipe {recipe:?} is not the job in force ({job_in_force}); PrepareRecipe first");
+            return Err(StatusCode::BadInvalidArgument);
         }
+        if !product.is_empty() {
+            tracing::warn!(camera = %cam.name, user, "OPC UA StartSingleJob refused: products are not used (ProductId {product:?})");
+            return Err(StatusCode::BadInvalidArgument);
+        }
+        let started = cam.trigger_as_plc(|acq_id| {
+            self.pending.lock().unwrap_or_else(|p| p.into_inner()).insert((camera, acq_id), ids.clone());
+        });
+        match started {
+            Ok(Some(acq_id)) => {
+                let job = results::job_id(&cam.name, boot_id, acq_id);
+                tracing::info!(camera = %cam.name, user, "OPC UA StartSingleJob: job {job} (MeasId {:?}, PartId {:?})", ids.meas_id, ids.part_id);
+                let mv = *self.mv.get().ok_or(StatusCode::BadInternalError)?;
+                let job_id = self.types.structure(&NodeId::new(mv, 3016u32), &[("Id", Variant::from(job.as_str()))]).map_err(|e| {
+                    tracing::error!(camera = %cam.name, "OPC UA StartSingleJob: the JobId cannot be made: {e}");
+                    StatusCode::BadInternalError
+                })?;
+                Ok(vec![Variant::from(job_id), Variant::from(0i32)])
+            }
+            Ok(None) => {
+                tracing::warn!(camera = %cam.name, user, "OPC UA StartSingleJob refused: the camera is not READY");
+                Err(StatusCode::BadInvalidState)
+            }
+            Err(e) => {
+                tracing::warn!(camera = %cam.name, user, "OPC UA StartSingleJob refused: {e}");
+                Err(StatusCode::BadInvalidState)
+            }
+        }
+    }
+}
+
+/// Raises a ResultReady event for every acquisition camera `index` publishes, on its object and
+/// on the Server object (clients subscribe to either).
+async fn report_results(
+    shell: &Shell,
+    handle: &async_opcua::server::ServerHandle,
+    nodes: &CameraNodes,
+    index: usize,
+    mut feed: tokio::sync::broadcast::Receiver<Arc<crate::appliance::camera::Acquisition>>,
+    shutdown: tokio_util::sync::CancellationToken,
+) {
+    use tokio::sync::broadcast::error::RecvError;
+    let cam = &shell.cameras[index];
+    let boot_id = cam.handshake.lock().unwrap_or_else(|p| p.into_inner()).settings().boot_id;
+    let server: NodeId = async_opcua::types::ObjectId::Server.into();
+    let Some(&mv) = shell.mv.get() else { return };
+    loop {
+        let acq = tokio::select! {
+            _ = shutdown.cancelled() => break,
+            r = feed.recv() => match r {
+                Ok(a) => a,
+                Err(RecvError::Lagged(n)) => {
+                    tracing::warn!(camera = %cam.name, "OPC UA: {n} acquisition(s) not reported (the server fell behind)");
+                    continue;
+                }
+                Err(RecvError::Closed) => break,
+            },
+        };
+        let ids = shell.pending.lock().unwrap_or_else(|p| p.into_inner()).remove(&(index, acq.acq_id)).unwrap_or_default();
+        let job = results::job_id(&cam.name, boot_id, acq.acq_id);
+        let event = results::ResultReady::new(&shell.types, mv, &nodes.system, &cam.name, &job, &acq, &ids);
+        handle.subscriptions().notify_events([(&event as &dyn async_opcua::nodes::Event, &nodes.system), (&event, &server)].into_iter());
     }
 }

@@ -47,6 +47,12 @@ pub enum Call {
     Reset,
     /// VisionStateMachine.SelectModeAutomatic: online.
     SelectModeAutomatic,
+    /// AutomaticModeStateMachine.StartSingleJob: one trigger.
+    StartSingleJob,
+    /// AutomaticModeStateMachine.Stop.
+    Stop,
+    /// AutomaticModeStateMachine.Abort.
+    Abort,
 }
 
 impl Call {
@@ -55,6 +61,9 @@ impl Call {
             "Halt" => Call::Halt,
             "Reset" => Call::Reset,
             "SelectModeAutomatic" => Call::SelectModeAutomatic,
+            "StartSingleJob" => Call::StartSingleJob,
+            "Stop" => Call::Stop,
+            "Abort" => Call::Abort,
             _ => return None,
         })
     }
@@ -76,10 +85,24 @@ impl Vision {
     pub fn build(imports: Vec<Box<dyn NodeSetImport>>, handler: Handler) -> impl FnOnce(ServerContext, &mut AddressSpace) -> Vision {
         move |context, address_space| {
             let mut namespaces: Vec<NamespaceMetadata> = Vec::new();
+            let mut data_types = Vec::new();
             {
                 let mut type_tree = context.type_tree.write();
                 for import in &imports {
-                    address_space.import_node_set(&**import, type_tree.namespaces_mut());
+                    // AddressSpace::import_node_set, noting the data types on the way.
+                    let mut map = async_opcua::types::NodeSetNamespaceMapper::new(type_tree.namespaces_mut());
+                    import.register_namespaces(&mut map);
+                    for ns in import.get_own_namespaces() {
+                        if let Some(&idx) = map.namespaces().known_namespaces().get(&ns) {
+                            address_space.add_namespace(&ns, idx);
+                        }
+                    }
+                    for item in import.load(&map) {
+                        if let NodeType::DataType(dt) = &item.node {
+                            data_types.push(dt.node_id().clone());
+                        }
+                        address_space.import_node(item);
+                    }
                     for ns in import.get_own_namespaces() {
                         if !namespaces.iter().any(|n| n.namespace_uri == ns) {
                             namespaces.push(NamespaceMetadata { namespace_uri: ns, ..Default::default() });
@@ -94,7 +117,47 @@ impl Vision {
             for ns in &namespaces {
                 address_space.add_namespace(&ns.namespace_uri, ns.namespace_index);
             }
+            inherit_definitions(address_space, &data_types);
             Vision { namespaces, calls: RwLock::new(HashMap::new()), handler }
+        }
+    }
+}
+
+/// A structure type the NodeSet declares without a definition of its own (MachineVision's
+/// RecipeIdExternalDataType, ConfigurationIdDataType, ...: subtypes of the abstract
+/// BinaryIdBaseDataType) gets its supertype's fields, with its own encoding: OPC UA 1.04 clients
+/// (asyncua's `load_data_type_definitions`) build a type only from its own DataTypeDefinition.
+///
+/// Every structure's definition also names its binary encoding (`DefaultEncodingId`), which the
+/// NodeSet's XML leaves out: a client that builds its types from the definitions (asyncua)
+/// sends that id with every structure it encodes.
+fn inherit_definitions(space: &mut AddressSpace, data_types: &[NodeId]) {
+    use async_opcua::types::DataTypeDefinition::Structure;
+    let tt = async_opcua::nodes::DefaultTypeTree::new();
+    for id in data_types {
+        let Some(NodeType::DataType(dt)) = space.find(id) else { continue };
+        let own = dt.data_type_definition().cloned();
+        let binary = space
+            .find_references(id, Some((ReferenceTypeId::HasEncoding, false)), &tt, BrowseDirection::Forward)
+            .map(|r| r.target_node.clone())
+            .find(|e| space.find(e).is_some_and(|n| n.as_node().browse_name().name.as_ref() == "Default Binary"));
+        let Some(binary) = binary else { continue };
+        let def = match own {
+            Some(Structure(def)) => async_opcua::types::StructureDefinition { default_encoding_id: binary, ..def },
+            Some(_) => continue,
+            None => {
+                let parent = space
+                    .find_references(id, Some((ReferenceTypeId::HasSubtype, false)), &tt, BrowseDirection::Inverse)
+                    .next()
+                    .map(|r| r.target_node.clone());
+                let Some(parent) = parent else { continue };
+                let Some(NodeType::DataType(p)) = space.find(&parent) else { continue };
+                let Some(Structure(def)) = p.data_type_definition().cloned() else { continue };
+                async_opcua::types::StructureDefinition { default_encoding_id: binary, base_data_type: parent, ..def }
+            }
+        };
+        if let Some(NodeType::DataType(dt)) = space.find_mut(id) {
+            dt.set_data_type_definition(Some(Structure(def)));
         }
     }
 }
