@@ -347,6 +347,10 @@ impl Handshake {
     pub fn busy(&self) -> bool {
         self.busy.is_some()
     }
+    /// Job `id` is in force and no change is waiting.
+    pub fn job_settled(&self, id: u16) -> bool {
+        self.job_id == id && self.jobs_pending == 0
+    }
     /// The ACQ_ID of the acquisition running, if one is.
     pub fn running(&self) -> Option<u16> {
         self.busy.map(|(id, _, _)| id)

@@ -31,6 +31,7 @@ async fn appliance(dir: &Path, anonymous: bool) -> lfi_bridge::appliance::Runnin
          [opcua]\nenabled = true\nbind = \"127.0.0.1:0\"\nallow_anonymous_read = {anonymous}\npki_dir = \"pki\"\n\
          [[opcua.users]]\nname = \"scada\"\npassword_file = \"scada.pw\"\n\
          [[camera]]\nunit_id = 1\nname = \"line3\"\nkb_from_simulator = true\nmm_per_px = 0.5\n\
+         [[camera.job]]\nid = 1\nname = \"any\"\n[[camera.job]]\nid = 2\nname = \"flanges\"\nexpected_type = 2\n\
          [camera.source]\nkind = \"sim\"\nwidth = 640\nheight = 480\nscenes = 9\nseed = 4\n"
     );
     let cfg = Config::from_toml(&text, &dir.join("appliance.toml")).expect("valid configuration");
@@ -341,6 +342,48 @@ async fn start_single_job_raises_result_ready_with_the_parts_the_plc_reads() {
         assert_eq!(p["job_id"], job.as_str());
         assert_eq!((p["meas_id"].as_str(), p["part_id"].as_str()), (Some("M-17"), Some("P-9")));
     }
+    let _ = user.disconnect().await;
+    running.stop().await;
+}
+
+/// PrepareRecipe is the PLC's JOB_REQUEST: a configured job comes into force (JOB_ID), an
+/// unknown one is refused and the job in force stays.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn prepare_recipe_changes_the_job_as_job_request_does() {
+    use async_opcua::client::custom_types::DataTypeTreeBuilder;
+    use async_opcua::types::ExtensionObject;
+    use async_opcua::types::custom::{DynamicStructure, DynamicTypeLoader};
+    let dir = tempfile::tempdir().unwrap();
+    let running = appliance(dir.path(), true).await;
+    let url = running.opcua_url.clone().expect("OPC UA enabled");
+    let user = session(&url, dir.path(), Some(("scada", PASSWORD))).await.expect("user session");
+    let (mv, di, own) = (namespace(&user, MV).await, namespace(&user, DI).await, namespace(&user, "urn:lfi-bridge:vision").await);
+    let tree = Arc::new(DataTypeTreeBuilder::new(|_| true).build(&user).await.expect("the server's data types"));
+    user.add_type_loader(Arc::new(DynamicTypeLoader::new(tree.clone())));
+    let id_struct = |type_id: u32, id: &str| {
+        let info = tree.get_struct_type(&NodeId::new(mv, type_id)).expect("a MachineVision structure").clone();
+        let values = info.fields.iter().map(|f| if f.name == "Id" { Variant::from(id) } else { Variant::Empty }).collect();
+        Variant::from(ExtensionObject::from_message(DynamicStructure::new_struct(info, tree.clone(), values).expect("valid")))
+    };
+    let recipes = browse_to(&user, &[(di, "DeviceSet"), (own, "line3"), (mv, "RecipeManagement")]).await;
+    let prepare = browse_to(&user, &[(di, "DeviceSet"), (own, "line3"), (mv, "RecipeManagement"), (mv, "PrepareRecipe")]).await;
+    let call = |id: &str| CallMethodRequest {
+        object_id: recipes.clone(),
+        method_id: prepare.clone(),
+        input_arguments: Some(vec![id_struct(3002, id), id_struct(3013, "")]),
+    };
+    let mut plc_ctx = plc(running.modbus_addr, 1).await;
+    assert_eq!(read_reg(&mut plc_ctx, addr::JOB_ID).await, 1);
+    let r = user.call_one(call("7")).await.expect("call answered");
+    assert_eq!(r.status_code, StatusCode::BadInvalidArgument, "an unknown job");
+    let r = user.call_one(call("2")).await.expect("call answered");
+    assert_eq!(r.status_code, StatusCode::Good, "{r:?}");
+    let until = tokio::time::Instant::now() + Duration::from_secs(10);
+    while read_reg(&mut plc_ctx, addr::JOB_ID).await != 2 {
+        assert!(tokio::time::Instant::now() < until, "job 2 never came into force");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert_eq!(read_reg(&mut plc_ctx, addr::EXPECTED_TYPE).await, 2, "the job's expected type, as for JOB_REQUEST");
     let _ = user.disconnect().await;
     running.stop().await;
 }

@@ -253,7 +253,35 @@ impl Shell {
                 Ok(vec![Variant::from(0i32)])
             }
             Call::StartSingleJob => self.start_single_job(camera, args, user),
+            Call::PrepareRecipe => self.prepare_recipe(camera, args, user),
         }
+    }
+
+    /// PrepareRecipe(ExternalId, InternalIdIn) -> (InternalIdOut, IsCompleted, Error): the
+    /// PLC's JOB_REQUEST with the job id `ExternalId.Id` in decimal. An id no `[[camera.job]]`
+    /// has is refused (`BadInvalidArgument`) and changes nothing; otherwise the job loads as
+    /// for the PLC (the job in force stays if it fails), `IsCompleted` says whether it is in
+    /// force already, and the automatic mode shows Initialized until it is.
+    fn prepare_recipe(&self, camera: usize, args: &[Variant], user: &str) -> Result<Vec<Variant>, StatusCode> {
+        let cam = &self.cameras[camera];
+        let text = args.first().map(|v| types::field(v, "Id")).unwrap_or_default();
+        let Some(id) = text.trim().parse::<u16>().ok().filter(|id| cam.jobs.iter().any(|(j, _)| j == id)) else {
+            let known: Vec<u16> = cam.jobs.iter().map(|(j, _)| *j).collect();
+            tracing::warn!(camera = %cam.name, user, "OPC UA PrepareRecipe refused: recipe {text:?} is not a configured job ({known:?})");
+            return Err(StatusCode::BadInvalidArgument);
+        };
+        if let Err(e) = cam.write_as_plc(addr::JOB_REQUEST, id) {
+            tracing::warn!(camera = %cam.name, user, "OPC UA PrepareRecipe {id} refused: {e}");
+            return Err(StatusCode::BadInvalidState);
+        }
+        tracing::info!(camera = %cam.name, user, "OPC UA PrepareRecipe: job {id} requested");
+        let done = cam.handshake.lock().unwrap_or_else(|p| p.into_inner()).job_settled(id);
+        let mv = *self.mv.get().ok_or(StatusCode::BadInternalError)?;
+        let internal = self.types.structure(&NodeId::new(mv, 3013u32), &[("Id", Variant::from(id.to_string()))]).map_err(|e| {
+            tracing::error!(camera = %cam.name, "OPC UA PrepareRecipe: the InternalId cannot be made: {e}");
+            StatusCode::BadInternalError
+        })?;
+        Ok(vec![Variant::from(internal), Variant::from(done), Variant::from(0i32)])
     }
 
     /// StartSingleJob(MeasId, PartId, RecipeId, ProductId, Parameters) -> (JobId, Error): one

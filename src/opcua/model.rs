@@ -53,6 +53,8 @@ pub enum Call {
     Stop,
     /// AutomaticModeStateMachine.Abort.
     Abort,
+    /// RecipeManagement.PrepareRecipe: JOB_REQUEST.
+    PrepareRecipe,
 }
 
 impl Call {
@@ -64,6 +66,7 @@ impl Call {
             "StartSingleJob" => Call::StartSingleJob,
             "Stop" => Call::Stop,
             "Abort" => Call::Abort,
+            "PrepareRecipe" => Call::PrepareRecipe,
             _ => return None,
         })
     }
