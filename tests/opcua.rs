@@ -25,6 +25,11 @@ const PASSWORD: &str = "line-3-secret";
 /// An appliance with the OPC UA server on a free port, its PKI and a user's password file in
 /// `dir`, and anonymous reading as configured.
 async fn appliance(dir: &Path, anonymous: bool) -> lfi_bridge::appliance::Running {
+    appliance_with(dir, anonymous, 9).await
+}
+
+/// As [`appliance`], the simulated camera serving `scenes` scenes in turn.
+async fn appliance_with(dir: &Path, anonymous: bool, scenes: usize) -> lfi_bridge::appliance::Running {
     std::fs::write(dir.join("scada.pw"), format!("{PASSWORD}\n")).unwrap();
     let text = format!(
         "[modbus]\nbind = \"127.0.0.1:0\"\n[http]\nenabled = false\n[log]\nlevel = \"warn\"\n\
@@ -32,7 +37,7 @@ async fn appliance(dir: &Path, anonymous: bool) -> lfi_bridge::appliance::Runnin
          [[opcua.users]]\nname = \"scada\"\npassword_file = \"scada.pw\"\n\
          [[camera]]\nunit_id = 1\nname = \"line3\"\nkb_from_simulator = true\nmm_per_px = 0.5\n\
          [[camera.job]]\nid = 1\nname = \"any\"\n[[camera.job]]\nid = 2\nname = \"flanges\"\nexpected_type = 2\n\
-         [camera.source]\nkind = \"sim\"\nwidth = 640\nheight = 480\nscenes = 9\nseed = 4\n"
+         [camera.source]\nkind = \"sim\"\nwidth = 640\nheight = 480\nscenes = {scenes}\nseed = 4\n"
     );
     let cfg = Config::from_toml(&text, &dir.join("appliance.toml")).expect("valid configuration");
     start(&cfg).await
@@ -123,6 +128,7 @@ async fn wait_state(session: &Session, machine: &NodeId, want: &str) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_vision_state_follows_the_plc_and_only_a_user_may_change_it() {
+    let _shared = common::MACHINE.read().await;
     let dir = tempfile::tempdir().unwrap();
     let running = appliance(dir.path(), true).await;
     let url = running.opcua_url.clone().expect("OPC UA enabled");
@@ -219,6 +225,7 @@ async fn start_single_job_raises_result_ready_with_the_parts_the_plc_reads() {
     use async_opcua::client::{EventCallback, custom_types::DataTypeTreeBuilder};
     use async_opcua::types::custom::{DynamicStructure, DynamicTypeLoader};
     use async_opcua::types::{ContentFilter, EventFilter, ExtensionObject, MonitoredItemCreateRequest, SimpleAttributeOperand};
+    let _shared = common::MACHINE.read().await;
     let dir = tempfile::tempdir().unwrap();
     let running = appliance(dir.path(), true).await;
     let url = running.opcua_url.clone().expect("OPC UA enabled");
@@ -353,6 +360,7 @@ async fn prepare_recipe_changes_the_job_as_job_request_does() {
     use async_opcua::client::custom_types::DataTypeTreeBuilder;
     use async_opcua::types::ExtensionObject;
     use async_opcua::types::custom::{DynamicStructure, DynamicTypeLoader};
+    let _shared = common::MACHINE.read().await;
     let dir = tempfile::tempdir().unwrap();
     let running = appliance(dir.path(), true).await;
     let url = running.opcua_url.clone().expect("OPC UA enabled");
@@ -385,5 +393,185 @@ async fn prepare_recipe_changes_the_job_as_job_request_does() {
     }
     assert_eq!(read_reg(&mut plc_ctx, addr::EXPECTED_TYPE).await, 2, "the job's expected type, as for JOB_REQUEST");
     let _ = user.disconnect().await;
+    running.stop().await;
+}
+
+/// OPC UA clients on a thread of their own at the lowest priority (they are other machines):
+/// `subscribers` anonymous sessions subscribed to the camera's ResultReady events, each
+/// counting what it receives, and, while `churn` is set, one client connecting and
+/// disconnecting as fast as it can.
+struct OpcuaLoad {
+    received: Vec<Arc<std::sync::atomic::AtomicUsize>>,
+    subscribed: Arc<std::sync::atomic::AtomicUsize>,
+    churn: Arc<std::sync::atomic::AtomicBool>,
+    churned: Arc<std::sync::atomic::AtomicUsize>,
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    thread: std::thread::JoinHandle<()>,
+}
+
+impl OpcuaLoad {
+    fn start(url: String, dir: std::path::PathBuf, subscribers: usize) -> Self {
+        use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering::Relaxed};
+        let received: Vec<_> = (0..subscribers).map(|_| Arc::new(AtomicUsize::new(0))).collect();
+        let (subscribed, churn, churned, stop) = (
+            Arc::new(AtomicUsize::new(0)),
+            Arc::new(AtomicBool::new(false)),
+            Arc::new(AtomicUsize::new(0)),
+            Arc::new(AtomicBool::new(false)),
+        );
+        let (r2, s2, c2, n2, st2) = (received.clone(), subscribed.clone(), churn.clone(), churned.clone(), stop.clone());
+        let thread = std::thread::spawn(move || {
+            // SAFETY: setpriority on this thread's own id.
+            unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 19) };
+            let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+            rt.block_on(async move {
+                use async_opcua::client::EventCallback;
+                use async_opcua::types::{ContentFilter, EventFilter, ExtensionObject, MonitoredItemCreateRequest, SimpleAttributeOperand};
+                let mut sessions = Vec::new();
+                for counter in r2 {
+                    let s = session(&url, &dir, None).await.expect("a subscriber's session");
+                    let (mv, di, own) = (namespace(&s, MV).await, namespace(&s, DI).await, namespace(&s, "urn:lfi-bridge:vision").await);
+                    let system = browse_to(&s, &[(di, "DeviceSet"), (own, "line3")]).await;
+                    let sub = s
+                        .create_subscription(
+                            Duration::from_millis(50),
+                            100,
+                            20,
+                            1000,
+                            0,
+                            true,
+                            EventCallback::new(move |_, _| {
+                                counter.fetch_add(1, Relaxed);
+                            }),
+                        )
+                        .await
+                        .expect("subscription");
+                    let content = SimpleAttributeOperand {
+                        type_definition_id: NodeId::new(mv, 1024u32),
+                        browse_path: Some(vec![QualifiedName::new(mv, "ResultContent")]),
+                        attribute_id: async_opcua::types::AttributeId::Value as u32,
+                        index_range: async_opcua::types::NumericRange::None,
+                    };
+                    let filter = EventFilter { where_clause: ContentFilter { elements: None }, select_clauses: Some(vec![content]) };
+                    let mut item: MonitoredItemCreateRequest = system.into();
+                    item.item_to_monitor.attribute_id = async_opcua::types::AttributeId::EventNotifier as u32;
+                    item.requested_parameters.queue_size = 100;
+                    item.requested_parameters.filter = ExtensionObject::from_message(filter);
+                    let r = s.create_monitored_items(sub, TimestampsToReturn::Neither, vec![item]).await.expect("monitored item");
+                    assert!(r[0].result.status_code.is_good());
+                    sessions.push(s);
+                    s2.fetch_add(1, Relaxed);
+                }
+                while !st2.load(Relaxed) {
+                    if c2.load(Relaxed) {
+                        if let Ok(s) = session(&url, &dir, None).await {
+                            let _ = s.disconnect().await;
+                            n2.fetch_add(1, Relaxed);
+                        }
+                    } else {
+                        tokio::time::sleep(Duration::from_millis(5)).await;
+                    }
+                }
+                for s in sessions {
+                    let _ = s.disconnect().await;
+                }
+            });
+        });
+        Self { received, subscribed, churn, churned, stop, thread }
+    }
+}
+
+/// Nothing OPC UA clients do slows the PLC: 20 sessions subscribed to every ResultReady and a
+/// client connecting and disconnecting 200 times as fast as it can, against quiet phases of the
+/// same run; and every subscriber gets every acquisition's event. As the operator view's test
+/// (tests/hardening.rs): p90 figures over alternating rounds, so that one slow moment of a shared
+/// machine cannot fail it and a real slowdown still does.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn twenty_subscribers_and_two_hundred_reconnects_do_not_slow_the_plc() {
+    use std::sync::atomic::Ordering::Relaxed;
+    use std::time::Instant;
+    let _alone = common::MACHINE.write().await;
+    let dir = tempfile::tempdir().unwrap();
+    // One scene over and over: every cycle does the same work.
+    let running = appliance_with(dir.path(), true, 1).await;
+    let url = running.opcua_url.clone().expect("OPC UA enabled");
+    let mut ctx = plc(running.modbus_addr, 1).await;
+    async fn sample(ctx: &mut tokio_modbus::client::Context, reads: &mut Vec<f64>, cycles: &mut Vec<f64>) {
+        for _ in 0..3 {
+            let t = Instant::now();
+            read(ctx, addr::STATUS, 1).await;
+            reads.push(t.elapsed().as_secs_f64() * 1e3);
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        let t = Instant::now();
+        assert!(!common::appliance::cycle(ctx).await.is_empty());
+        cycles.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    for _ in 0..3 {
+        sample(&mut ctx, &mut Vec::new(), &mut Vec::new()).await;
+    }
+    let (mut quiet_reads, mut quiet_cycles) = (Vec::new(), Vec::new());
+    for _ in 0..20 {
+        sample(&mut ctx, &mut quiet_reads, &mut quiet_cycles).await;
+    }
+    const SUBSCRIBERS: usize = 20;
+    let load = OpcuaLoad::start(url, dir.path().to_path_buf(), SUBSCRIBERS);
+    let until = Instant::now() + Duration::from_secs(60);
+    while load.subscribed.load(Relaxed) < SUBSCRIBERS {
+        assert!(Instant::now() < until, "only {} subscribers connected", load.subscribed.load(Relaxed));
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    // Events from here on: every subscriber must get each one.
+    let base: Vec<usize> = load.received.iter().map(|r| r.load(Relaxed)).collect();
+    let (mut reads, mut cycles, mut acquisitions) = (Vec::new(), Vec::new(), 0usize);
+    load.churn.store(true, Relaxed);
+    const ROUNDS: usize = 5;
+    for _ in 0..ROUNDS {
+        load.churn.store(true, Relaxed);
+        for _ in 0..10 {
+            sample(&mut ctx, &mut reads, &mut cycles).await;
+            acquisitions += 1;
+        }
+        load.churn.store(false, Relaxed);
+        for _ in 0..6 {
+            sample(&mut ctx, &mut quiet_reads, &mut quiet_cycles).await;
+            acquisitions += 1;
+        }
+    }
+    // The rest of the 200 reconnects, with the PLC cycling beside them.
+    load.churn.store(true, Relaxed);
+    while load.churned.load(Relaxed) < 200 {
+        assert!(Instant::now() < until + Duration::from_secs(120), "only {} reconnects", load.churned.load(Relaxed));
+        sample(&mut ctx, &mut reads, &mut cycles).await;
+        acquisitions += 1;
+    }
+    load.churn.store(false, Relaxed);
+    let wait = Instant::now() + Duration::from_secs(5);
+    let got = loop {
+        let got: Vec<usize> = load.received.iter().zip(&base).map(|(r, b)| r.load(Relaxed) - b).collect();
+        if got.iter().all(|&n| n >= acquisitions) || Instant::now() > wait {
+            break got;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+    load.stop.store(true, Relaxed);
+    let (churned, thread) = (load.churned.load(Relaxed), load.thread);
+    tokio::task::spawn_blocking(move || thread.join().unwrap()).await.unwrap();
+
+    let p = |v: &mut Vec<f64>, q: f64| {
+        v.sort_by(f64::total_cmp);
+        v[((v.len() as f64 * q).ceil() as usize).clamp(1, v.len()) - 1]
+    };
+    let (qr99, lr99) = (p(&mut quiet_reads, 0.99), p(&mut reads, 0.99));
+    let (qc50, qc90, lc50, lc90, lc99) =
+        (p(&mut quiet_cycles, 0.5), p(&mut quiet_cycles, 0.9), p(&mut cycles, 0.5), p(&mut cycles, 0.9), p(&mut cycles, 0.99));
+    eprintln!(
+        "{SUBSCRIBERS} subscribers, {churned} reconnects, {acquisitions} acquisitions: PLC read p99 quiet {qr99:.2} ms, loaded {lr99:.2} ms; trigger-to-result quiet median {qc50:.1} / p90 {qc90:.1} ms, loaded median {lc50:.1} / p90 {lc90:.1} / p99 {lc99:.1} ms over {} cycles; events per subscriber {got:?}",
+        cycles.len()
+    );
+    assert!(got.iter().all(|&n| n == acquisitions), "events per subscriber {got:?}, acquisitions {acquisitions}");
+    assert!(lr99 <= 50.0, "PLC read p99 {lr99:.2} ms under OPC UA load");
+    assert!(lc90 <= 2.0 * qc90.max(10.0), "loaded cycle p90 {lc90:.1} ms against a quiet p90 of {qc90:.1} ms");
+    assert!(lc50 <= 2.0 * qc50.max(10.0), "loaded cycle median {lc50:.1} ms against a quiet median of {qc50:.1} ms");
     running.stop().await;
 }
