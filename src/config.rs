@@ -773,11 +773,19 @@ impl Config {
                     ));
                 }
             }
+            // Port 0 (any free port, as tests ask) never collides.
+            let clash = |other: SocketAddr| {
+                o.bind.port() != 0
+                    && other.port() == o.bind.port()
+                    && (other.ip() == o.bind.ip() || other.ip().is_unspecified() || o.bind.ip().is_unspecified())
+            };
             if let Some(h) = &http
-                && h.bind.port() == o.bind.port()
-                && (h.bind.ip() == o.bind.ip() || h.bind.ip().is_unspecified() || o.bind.ip().is_unspecified())
+                && clash(h.bind)
             {
                 return Err(c.err("opcua.bind", o.bind, format!("is the operator view's port too ({})", h.bind)));
+            }
+            if clash(modbus.bind) {
+                return Err(c.err("opcua.bind", o.bind, format!("is the PLC's Modbus port too ({})", modbus.bind)));
             }
         }
         Ok(Config {

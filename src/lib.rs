@@ -31,12 +31,13 @@ pub mod vision;
 /// ([`http::attach`]). The one place both are wired: the appliance knows no HTTP.
 pub async fn start(cfg: &config::Config) -> Result<appliance::Running, appliance::StartError> {
     let mut running = appliance::start(cfg).await?;
+    let opcua_stats = cfg.opcua.as_ref().map(|_| std::sync::Arc::new(opcua::Stats::default()));
     if let Some(h) = &cfg.http {
-        http::attach(&mut running, h).await?;
+        http::attach(&mut running, h, opcua_stats.clone()).await?;
     }
-    if let Some(o) = &cfg.opcua {
+    if let (Some(o), Some(stats)) = (&cfg.opcua, opcua_stats) {
         let triggers = cfg.cameras.iter().map(|c| c.trigger).collect();
-        let url = opcua::attach(&mut running, o, triggers).await?;
+        let url = opcua::attach(&mut running, o, triggers, stats).await?;
         running.opcua_url = Some(url);
     }
     Ok(running)

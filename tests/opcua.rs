@@ -8,13 +8,12 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 
-use async_opcua::client::{ClientBuilder, IdentityToken, Password, Session};
-use async_opcua::crypto::SecurityPolicy;
+use async_opcua::client::Session;
 use async_opcua::types::{
-    BrowsePath, CallMethodRequest, LocalizedText, MessageSecurityMode, NodeId, QualifiedName, ReadValueId, ReferenceTypeId, RelativePath,
-    RelativePathElement, StatusCode, TimestampsToReturn, UserTokenPolicy, VariableId, Variant,
+    CallMethodRequest, LocalizedText, NodeId, QualifiedName, ReferenceTypeId, StatusCode, TimestampsToReturn, Variant,
 };
 use common::appliance::*;
+use common::opcua::*;
 use lfi_bridge::config::Config;
 use lfi_bridge::registers::addr;
 
@@ -32,7 +31,7 @@ async fn appliance(dir: &Path, anonymous: bool) -> lfi_bridge::appliance::Runnin
 async fn appliance_with(dir: &Path, anonymous: bool, scenes: usize) -> lfi_bridge::appliance::Running {
     std::fs::write(dir.join("scada.pw"), format!("{PASSWORD}\n")).unwrap();
     let text = format!(
-        "[modbus]\nbind = \"127.0.0.1:0\"\n[http]\nenabled = false\n[log]\nlevel = \"warn\"\n\
+        "[modbus]\nbind = \"127.0.0.1:0\"\n[http]\nbind = \"127.0.0.1:0\"\n[log]\nlevel = \"warn\"\n\
          [opcua]\nenabled = true\nbind = \"127.0.0.1:0\"\nallow_anonymous_read = {anonymous}\npki_dir = \"pki\"\n\
          [[opcua.users]]\nname = \"scada\"\npassword_file = \"scada.pw\"\n\
          [[camera]]\nunit_id = 1\nname = \"line3\"\nkb_from_simulator = true\nmm_per_px = 0.5\n\
@@ -41,70 +40,6 @@ async fn appliance_with(dir: &Path, anonymous: bool, scenes: usize) -> lfi_bridg
     );
     let cfg = Config::from_toml(&text, &dir.join("appliance.toml")).expect("valid configuration");
     start(&cfg).await
-}
-
-/// A session on the None endpoint, anonymous or as `user`.
-async fn session(url: &str, dir: &Path, user: Option<(&str, &str)>) -> Result<Arc<Session>, StatusCode> {
-    let mut client = ClientBuilder::new()
-        .application_name("lfi-bridge test client")
-        .application_uri("urn:lfi-bridge:test-client")
-        .pki_dir(dir.join("client-pki"))
-        .create_sample_keypair(true)
-        .trust_server_certs(true)
-        .session_retry_limit(0)
-        .client()
-        .expect("client");
-    let (policy, token) = match user {
-        None => (UserTokenPolicy::anonymous(), IdentityToken::Anonymous),
-        Some((u, p)) => (
-            UserTokenPolicy { token_type: async_opcua::types::UserTokenType::UserName, ..UserTokenPolicy::anonymous() },
-            IdentityToken::UserName(u.to_string(), Password::new(p.to_string())),
-        ),
-    };
-    let (session, event_loop) = client
-        .connect_to_matching_endpoint((url, SecurityPolicy::None.to_str(), MessageSecurityMode::None, policy), token)
-        .await
-        .map_err(|e| e.status())?;
-    let handle = event_loop.spawn();
-    tokio::select! {
-        ok = session.wait_for_connection() => if !ok { return Err(StatusCode::BadNotConnected) },
-        r = handle => return Err(r.unwrap_or(StatusCode::BadUnexpectedError)),
-    }
-    Ok(session)
-}
-
-async fn namespace(session: &Session, uri: &str) -> u16 {
-    let v = value(session, &VariableId::Server_NamespaceArray.into()).await;
-    let Variant::Array(a) = v else { panic!("NamespaceArray is {v:?}") };
-    a.values.iter().position(|u| matches!(u, Variant::String(s) if s.as_ref() == uri)).expect("namespace") as u16
-}
-
-async fn value(session: &Session, node: &NodeId) -> Variant {
-    let r = session.read(&[ReadValueId::new_value(node.clone())], TimestampsToReturn::Neither, 0.0).await.expect("read");
-    r[0].value.clone().unwrap_or(Variant::Empty)
-}
-
-/// The node at `path` (browse names, each with its namespace) below Objects.
-async fn browse_to(session: &Session, path: &[(u16, &str)]) -> NodeId {
-    let elements = path
-        .iter()
-        .map(|&(ns, name)| RelativePathElement {
-            reference_type_id: ReferenceTypeId::HierarchicalReferences.into(),
-            is_inverse: false,
-            include_subtypes: true,
-            target_name: QualifiedName::new(ns, name),
-        })
-        .collect();
-    let r = session
-        .translate_browse_paths_to_node_ids(&[BrowsePath {
-            starting_node: async_opcua::types::ObjectId::ObjectsFolder.into(),
-            relative_path: RelativePath { elements: Some(elements) },
-        }])
-        .await
-        .expect("translate");
-    let targets = r[0].targets.clone().unwrap_or_default();
-    assert!(!targets.is_empty(), "nothing at Objects/{path:?}: {:?}", r[0].status_code);
-    targets[0].target_id.node_id.clone()
 }
 
 async fn state(session: &Session, machine: &NodeId) -> String {
@@ -178,6 +113,28 @@ async fn the_vision_state_follows_the_plc_and_only_a_user_may_change_it() {
     assert_eq!(r.status_code, StatusCode::Good);
     assert_eq!(read_reg(&mut plc_ctx, addr::ONLINE).await, 1);
     wait_state(&anon, &current, "Operational").await;
+
+    // The page and /metrics count what happened: two calls carried out.
+    let web = running.http_addr.expect("the operator view");
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let (st, _, body) = tokio::task::spawn_blocking(move || common::http::http(web, "GET", "/metrics", &[], "")).await.unwrap();
+    let text = String::from_utf8(body).unwrap();
+    assert_eq!(st, 200);
+    // (The wrong password's session was created and never activated: it counts until it
+    // times out.)
+    let sessions = text.lines().find_map(|l| l.strip_prefix("lfi_opcua_sessions ")).and_then(|v| v.parse::<u64>().ok());
+    assert!(sessions.is_some_and(|n| n >= 2), "lfi_opcua_sessions {sessions:?}");
+    for line in ["lfi_opcua_method_calls_total{outcome=\"ok\"} 2", "lfi_opcua_method_calls_total{outcome=\"refused\"} 0"] {
+        assert!(
+            text.lines().any(|l| l == line),
+            "{line} missing from /metrics:\n{}",
+            text.lines().filter(|l| l.contains("opcua")).collect::<Vec<_>>().join("\n")
+        );
+    }
+    let (_, _, body) = tokio::task::spawn_blocking(move || common::http::http(web, "GET", "/api/state", &[], "")).await.unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    assert_eq!(v["opcua"]["endpoint"], url.as_str());
+    assert!(v["opcua"]["sessions"].as_u64().is_some_and(|n| n >= 2), "{}", v["opcua"]);
     let _ = user.disconnect().await;
     let _ = anon.disconnect().await;
     running.stop().await;

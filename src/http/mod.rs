@@ -55,6 +55,8 @@ pub struct AppState {
     /// Per camera, the live picture encoded for the latest frame (by `Live::seq`): encoded once
     /// per frame, however many clients ask (the lock makes the others wait for that one).
     pub pictures: Arc<Vec<Picture>>,
+    /// The OPC UA server's counters, when it runs.
+    pub opcua: Option<Arc<crate::opcua::Stats>>,
     /// Per camera, the templates alike overall for the knowledge base of a key (see
     /// `views::templates_key`): worked out once per change of templates (the lock makes other
     /// clients wait for that one).
@@ -66,7 +68,7 @@ pub type Alike = tokio::sync::Mutex<Option<(String, Arc<Vec<AlikeView>>)>>;
 
 /// Starts the operator view beside a running appliance (which stops it with itself), on its own
 /// thread and single-threaded runtime.
-pub async fn attach(running: &mut Running, cfg: &HttpConfig) -> Result<SocketAddr, StartError> {
+pub async fn attach(running: &mut Running, cfg: &HttpConfig, opcua: Option<Arc<crate::opcua::Stats>>) -> Result<SocketAddr, StartError> {
     let bind_err = |source| StartError::Bind { addr: cfg.bind, source };
     let listener = std::net::TcpListener::bind(cfg.bind).map_err(bind_err)?;
     listener.set_nonblocking(true).map_err(bind_err)?;
@@ -79,6 +81,7 @@ pub async fn attach(running: &mut Running, cfg: &HttpConfig) -> Result<SocketAdd
         token: cfg.token.clone(),
         pictures,
         alike: Arc::new(running.cameras.iter().map(|_| tokio::sync::Mutex::new(None)).collect()),
+        opcua,
     };
     tracing::info!(
         "operator view on http://{addr}/ ({})",
@@ -215,7 +218,7 @@ async fn healthz(State(state): State<AppState>) -> Response {
 }
 
 /// Metric families: name, type, help.
-const FAMILIES: [(&str, &str, &str); 27] = [
+const FAMILIES: [(&str, &str, &str); 33] = [
     ("lfi_modbus_clients", "gauge", "Modbus/TCP clients connected."),
     ("lfi_modbus_requests_total", "counter", "Modbus requests answered."),
     ("lfi_modbus_exceptions_total", "counter", "Modbus requests answered with an exception."),
@@ -243,6 +246,20 @@ const FAMILIES: [(&str, &str, &str); 27] = [
     ("lfi_archive_dropped_total", "counter", "Frames not archived: the archive's queue was full (the disk is slower than the line)."),
     ("lfi_archive_failed_total", "counter", "Frames the archive could not write (logged)."),
     ("lfi_archive_deleted_total", "counter", "Archived frames deleted to keep within max_files and max_mb."),
+    ("lfi_opcua_sessions", "gauge", "OPC UA sessions open."),
+    ("lfi_opcua_subscriptions", "gauge", "OPC UA subscriptions."),
+    ("lfi_opcua_sessions_total", "counter", "OPC UA sessions opened since start."),
+    ("lfi_opcua_rejected_requests_total", "counter", "OPC UA requests the server rejected."),
+    (
+        "lfi_opcua_method_calls_total",
+        "counter",
+        "OPC UA method calls the appliance answered, by outcome (ok; refused by its checks: not READY, an unknown job, ...). An anonymous session's call is refused by the server before it and is not counted here.",
+    ),
+    (
+        "lfi_opcua_events_total",
+        "counter",
+        "OPC UA ResultReady events raised (lost: acquisitions not reported because the server fell behind).",
+    ),
 ];
 
 async fn metrics(State(state): State<AppState>) -> Response {
@@ -250,6 +267,25 @@ async fn metrics(State(state): State<AppState>) -> Response {
     use std::sync::atomic::Ordering::Relaxed;
     let mut m = String::new();
     for (name, kind, help) in FAMILIES {
+        if name.starts_with("lfi_opcua_") {
+            // Only when the OPC UA server runs.
+            let Some(o) = &state.opcua else { continue };
+            let _ = writeln!(m, "# HELP {name} {help}\n# TYPE {name} {kind}");
+            let values: Vec<(&str, u64)> = match name {
+                "lfi_opcua_sessions" => vec![("", o.sessions.load(Relaxed))],
+                "lfi_opcua_subscriptions" => vec![("", o.subscriptions.load(Relaxed))],
+                "lfi_opcua_sessions_total" => vec![("", o.sessions_total.load(Relaxed))],
+                "lfi_opcua_rejected_requests_total" => vec![("", o.rejected_requests.load(Relaxed))],
+                "lfi_opcua_method_calls_total" => {
+                    vec![("{outcome=\"ok\"}", o.calls_ok.load(Relaxed)), ("{outcome=\"refused\"}", o.calls_refused.load(Relaxed))]
+                }
+                _ => vec![("{result=\"raised\"}", o.events.load(Relaxed)), ("{result=\"lost\"}", o.events_lost.load(Relaxed))],
+            };
+            for (labels, v) in values {
+                let _ = writeln!(m, "{name}{labels} {v}");
+            }
+            continue;
+        }
         let _ = writeln!(m, "# HELP {name} {help}\n# TYPE {name} {kind}");
         let global = match name {
             "lfi_modbus_clients" => Some(state.stats.connected.load(Relaxed)),
@@ -348,6 +384,11 @@ fn state_view(state: &AppState) -> StateView {
         modbus_clients: state.stats.connected.load(Relaxed),
         modbus_requests: state.stats.requests.load(Relaxed),
         modbus_exceptions: state.stats.exceptions.load(Relaxed),
+        opcua: state.opcua.as_ref().map(|o| views::OpcuaView {
+            endpoint: o.endpoint.get().cloned().unwrap_or_default(),
+            sessions: o.sessions.load(Relaxed),
+            subscriptions: o.subscriptions.load(Relaxed),
+        }),
         can_change: state.token.is_some(),
         cameras: state.cameras.iter().map(camera_view).collect(),
     }

@@ -201,8 +201,18 @@ pub struct StateView {
     pub(super) modbus_clients: usize,
     pub(super) modbus_requests: usize,
     pub(super) modbus_exceptions: usize,
+    /// The OPC UA server, when it runs.
+    pub(super) opcua: Option<OpcuaView>,
     pub(super) can_change: bool,
     pub(super) cameras: Vec<CameraView>,
+}
+
+/// The OPC UA server as the page shows it.
+#[derive(Serialize)]
+pub struct OpcuaView {
+    pub(super) endpoint: String,
+    pub(super) sessions: u64,
+    pub(super) subscriptions: u64,
 }
 
 /// One acquisition of the history.

@@ -62,6 +62,8 @@ impl AuthManager for Users {
     }
 
     /// Every method of the model changes something: never for an anonymous session.
+    /// (Also asked when a client reads a method's UserExecutable attribute: what it says is
+    /// what a call gets.)
     fn is_user_executable(&self, token: &UserToken, _method_id: &NodeId) -> bool {
         !token.is_anonymous() && token.0 != ANONYMOUS_USER_TOKEN_ID
     }

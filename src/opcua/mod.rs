@@ -12,6 +12,7 @@ pub mod types;
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Duration;
 
@@ -27,6 +28,29 @@ use model::{Call, CameraNodes, Vision};
 /// How often the cameras' states are read into the model (a change shows within this).
 const STATE_PERIOD: Duration = Duration::from_millis(100);
 
+/// The server's counters, for the operator view and `/metrics`.
+#[derive(Debug, Default)]
+pub struct Stats {
+    /// The endpoint URL, once the server listens.
+    pub endpoint: OnceLock<String>,
+    /// Sessions open now (the server's own diagnostics, copied every 100 ms).
+    pub sessions: AtomicU64,
+    /// Subscriptions now.
+    pub subscriptions: AtomicU64,
+    /// Sessions opened since start.
+    pub sessions_total: AtomicU64,
+    /// Requests the server rejected (malformed, over a limit, not allowed).
+    pub rejected_requests: AtomicU64,
+    /// Method calls carried out.
+    pub calls_ok: AtomicU64,
+    /// Method calls refused by the appliance's checks (not READY, an unknown job, ...).
+    pub calls_refused: AtomicU64,
+    /// ResultReady events raised.
+    pub events: AtomicU64,
+    /// Acquisitions not reported because the server fell behind.
+    pub events_lost: AtomicU64,
+}
+
 /// The endpoint URL clients connect to for `bind`.
 pub fn endpoint_url(bind: SocketAddr) -> String {
     let host = if bind.ip().is_unspecified() { hostname() } else { bind.ip().to_string() };
@@ -40,7 +64,7 @@ fn hostname() -> String {
 
 /// Starts the OPC UA server beside a running appliance (which stops it with itself), on its own
 /// thread and runtime; returns the endpoint URL.
-pub async fn attach(running: &mut Running, cfg: &OpcuaConfig, triggers: Vec<Trigger>) -> Result<String, StartError> {
+pub async fn attach(running: &mut Running, cfg: &OpcuaConfig, triggers: Vec<Trigger>, stats: Arc<Stats>) -> Result<String, StartError> {
     let bind_err = |source| StartError::Bind { addr: cfg.bind, source };
     let listener = std::net::TcpListener::bind(cfg.bind).map_err(bind_err)?;
     listener.set_nonblocking(true).map_err(bind_err)?;
@@ -51,6 +75,7 @@ pub async fn attach(running: &mut Running, cfg: &OpcuaConfig, triggers: Vec<Trig
     let cameras = running.cameras.clone();
     let types = Arc::new(types::LateTypes::default());
     let shell = Arc::new(Shell {
+        stats: stats.clone(),
         cameras: cameras.clone(),
         types: types.clone(),
         triggers: triggers.clone(),
@@ -84,6 +109,7 @@ pub async fn attach(running: &mut Running, cfg: &OpcuaConfig, triggers: Vec<Trig
             handle.get_namespace_index(model::MV_URI).ok_or_else(|| StartError::Opcua { message: "no MachineVision namespace".into() })?;
         let _ = shell.mv.set(mv);
     }
+    let _ = stats.endpoint.set(url.clone());
     tracing::info!(
         "OPC UA server on {url} ({} vision system(s) under Objects/DeviceSet; anonymous {}; {} user(s); PKI {})",
         nodes.len(),
@@ -197,6 +223,7 @@ async fn follow_states(
                 }
             }
         }
+        copy_diagnostics(handle, &shell.stats);
         for (i, cam) in cameras.iter().enumerate() {
             let free_run = shell.triggers.get(i) == Some(&Trigger::FreeRun);
             let state = cam.handshake.lock().unwrap_or_else(|p| p.into_inner()).vision_state(free_run);
@@ -216,6 +243,7 @@ async fn follow_states(
 
 /// What method calls and result reports share.
 struct Shell {
+    stats: Arc<Stats>,
     cameras: Arc<Vec<CameraHandle>>,
     types: Arc<types::LateTypes>,
     triggers: Vec<Trigger>,
@@ -227,8 +255,18 @@ struct Shell {
 }
 
 impl Shell {
-    /// A method call on camera `camera`, carried out as the PLC's register writes would be.
+    /// A method call on camera `camera`, carried out as the PLC's register writes would be
+    /// (counted by outcome).
     fn call(&self, camera: usize, call: Call, args: &[Variant], user: &str) -> Result<Vec<Variant>, StatusCode> {
+        let r = self.carry_out(camera, call, args, user);
+        match &r {
+            Ok(_) => self.stats.calls_ok.fetch_add(1, Relaxed),
+            Err(_) => self.stats.calls_refused.fetch_add(1, Relaxed),
+        };
+        r
+    }
+
+    fn carry_out(&self, camera: usize, call: Call, args: &[Variant], user: &str) -> Result<Vec<Variant>, StatusCode> {
         let cam = &self.cameras[camera];
         let free_run = self.triggers.get(camera) == Some(&Trigger::FreeRun);
         let write = |register: u16, value: u16| match cam.write_as_plc(register, value) {
@@ -351,6 +389,7 @@ async fn report_results(
             r = feed.recv() => match r {
                 Ok(a) => a,
                 Err(RecvError::Lagged(n)) => {
+                    shell.stats.events_lost.fetch_add(n, Relaxed);
                     tracing::warn!(camera = %cam.name, "OPC UA: {n} acquisition(s) not reported (the server fell behind)");
                     continue;
                 }
@@ -361,5 +400,25 @@ async fn report_results(
         let job = results::job_id(&cam.name, boot_id, acq.acq_id);
         let event = results::ResultReady::new(&shell.types, mv, &nodes.system, &cam.name, &job, &acq, &ids);
         handle.subscriptions().notify_events([(&event as &dyn async_opcua::nodes::Event, &nodes.system), (&event, &server)].into_iter());
+        shell.stats.events.fetch_add(1, Relaxed);
+    }
+}
+
+/// The server's session and subscription counts (its diagnostics summary) into `stats`.
+fn copy_diagnostics(handle: &async_opcua::server::ServerHandle, stats: &Stats) {
+    use async_opcua::types::VariableId as V;
+    let read = |id: V| match handle.info().diagnostics.get(id).and_then(|v| v.value) {
+        Some(Variant::UInt32(n)) => Some(n as u64),
+        _ => None,
+    };
+    for (id, to) in [
+        (V::Server_ServerDiagnostics_ServerDiagnosticsSummary_CurrentSessionCount, &stats.sessions),
+        (V::Server_ServerDiagnostics_ServerDiagnosticsSummary_CurrentSubscriptionCount, &stats.subscriptions),
+        (V::Server_ServerDiagnostics_ServerDiagnosticsSummary_CumulatedSessionCount, &stats.sessions_total),
+        (V::Server_ServerDiagnostics_ServerDiagnosticsSummary_RejectedRequestsCount, &stats.rejected_requests),
+    ] {
+        if let Some(n) = read(id) {
+            to.store(n, Relaxed);
+        }
     }
 }

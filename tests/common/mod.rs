@@ -6,6 +6,7 @@ pub mod appliance;
 pub mod fanuc;
 pub mod http;
 pub mod load;
+pub mod opcua;
 pub mod webdriver;
 
 use lfi_bridge::eval::Observation;
