@@ -241,12 +241,20 @@ async fn start_single_job_raises_result_ready_with_the_parts_the_plc_reads() {
         where_clause: ContentFilter { elements: None },
         select_clauses: Some(vec![field("JobId"), field("MeasId"), field("ResultContent")]),
     };
-    let mut item: MonitoredItemCreateRequest = system.clone().into();
-    item.item_to_monitor.attribute_id = async_opcua::types::AttributeId::EventNotifier as u32;
-    item.requested_parameters.queue_size = 10;
-    item.requested_parameters.filter = ExtensionObject::from_message(filter);
-    let r = user.create_monitored_items(sub, TimestampsToReturn::Neither, vec![item]).await.expect("monitored item");
-    assert!(r[0].result.status_code.is_good(), "{:?}", r[0].result.status_code);
+    // The same events on the camera's object and on the Server object: one of each per job.
+    let item = |node: NodeId| {
+        let mut item: MonitoredItemCreateRequest = node.into();
+        item.item_to_monitor.attribute_id = async_opcua::types::AttributeId::EventNotifier as u32;
+        item.requested_parameters.queue_size = 10;
+        item.requested_parameters.filter = ExtensionObject::from_message(filter.clone());
+        item
+    };
+    let server: NodeId = async_opcua::types::ObjectId::Server.into();
+    let r = user
+        .create_monitored_items(sub, TimestampsToReturn::Neither, vec![item(system.clone()), item(server)])
+        .await
+        .expect("monitored items");
+    assert!(r.iter().all(|r| r.result.status_code.is_good()), "{r:?}");
 
     let call = CallMethodRequest {
         object_id: auto.clone(),
@@ -272,6 +280,10 @@ async fn start_single_job_raises_result_ready_with_the_parts_the_plc_reads() {
     let job = job.as_ref().to_string();
 
     let fields = tokio::time::timeout(Duration::from_secs(10), rx.recv()).await.expect("a ResultReady within 10 s").expect("event");
+    let second = tokio::time::timeout(Duration::from_secs(5), rx.recv()).await.expect("the Server object's copy").expect("event");
+    assert_eq!(second, fields, "the Server object's copy is the same event");
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    assert!(rx.try_recv().is_err(), "one event per job on each object, no more");
     let id_of = |v: &Variant| match v {
         Variant::ExtensionObject(o) => o.inner_as::<DynamicStructure>().and_then(|s| s.get_field_by_name("Id").cloned()),
         _ => None,

@@ -381,7 +381,6 @@ async fn report_results(
     use tokio::sync::broadcast::error::RecvError;
     let cam = &shell.cameras[index];
     let boot_id = cam.handshake.lock().unwrap_or_else(|p| p.into_inner()).settings().boot_id;
-    let server: NodeId = async_opcua::types::ObjectId::Server.into();
     let Some(&mv) = shell.mv.get() else { return };
     loop {
         let acq = tokio::select! {
@@ -399,7 +398,8 @@ async fn report_results(
         let ids = shell.pending.lock().unwrap_or_else(|p| p.into_inner()).remove(&(index, acq.acq_id)).unwrap_or_default();
         let job = results::job_id(&cam.name, boot_id, acq.acq_id);
         let event = results::ResultReady::new(&shell.types, mv, &nodes.system, &cam.name, &job, &acq, &ids);
-        handle.subscriptions().notify_events([(&event as &dyn async_opcua::nodes::Event, &nodes.system), (&event, &server)].into_iter());
+        // Raised on the camera's object; the server hands it to Server's subscribers too.
+        handle.subscriptions().notify_events([(&event as &dyn async_opcua::nodes::Event, &nodes.system)].into_iter());
         shell.stats.events.fetch_add(1, Relaxed);
     }
 }
