@@ -164,6 +164,22 @@ async fn session_type_definition(session: &Session, node: &NodeId) -> NodeId {
     refs.first().expect("a type definition").node_id.node_id.clone()
 }
 
+/// The MachineVision structures as the server describes them (what a generic client does),
+/// loaded into `session`'s decoder; returns a maker of a structure of type `ns=mv;i=type_id`
+/// with its `Id` set (the other fields null).
+async fn id_structures(session: &Session, mv: u16) -> impl Fn(u32, &str) -> Variant {
+    use async_opcua::client::custom_types::DataTypeTreeBuilder;
+    use async_opcua::types::ExtensionObject;
+    use async_opcua::types::custom::{DynamicStructure, DynamicTypeLoader};
+    let tree = Arc::new(DataTypeTreeBuilder::new(|_| true).build(session).await.expect("the server's data types"));
+    session.add_type_loader(Arc::new(DynamicTypeLoader::new(tree.clone())));
+    move |type_id: u32, id: &str| {
+        let info = tree.get_struct_type(&NodeId::new(mv, type_id)).expect("a MachineVision structure").clone();
+        let values = info.fields.iter().map(|f| if f.name == "Id" { Variant::from(id) } else { Variant::Empty }).collect();
+        Variant::from(ExtensionObject::from_message(DynamicStructure::new_struct(info, tree.clone(), values).expect("valid")))
+    }
+}
+
 /// The PLC's result block, every queued result in order (acknowledging each): (ACQ_ID,
 /// PART_INDEX, PART_COUNT, TYPE_ID, DECISION, REASON, ANGLE_F32, X_F32, Y_F32).
 async fn plc_results(ctx: &mut tokio_modbus::client::Context) -> Vec<(u16, u16, u16, u16, u16, u16, f32, f32, f32)> {
@@ -179,8 +195,8 @@ async fn plc_results(ctx: &mut tokio_modbus::client::Context) -> Vec<(u16, u16, 
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn start_single_job_raises_result_ready_with_the_parts_the_plc_reads() {
-    use async_opcua::client::{EventCallback, custom_types::DataTypeTreeBuilder};
-    use async_opcua::types::custom::{DynamicStructure, DynamicTypeLoader};
+    use async_opcua::client::EventCallback;
+    use async_opcua::types::custom::DynamicStructure;
     use async_opcua::types::{ContentFilter, EventFilter, ExtensionObject, MonitoredItemCreateRequest, SimpleAttributeOperand};
     let _shared = common::MACHINE.read().await;
     let dir = tempfile::tempdir().unwrap();
@@ -188,14 +204,7 @@ async fn start_single_job_raises_result_ready_with_the_parts_the_plc_reads() {
     let url = running.opcua_url.clone().expect("OPC UA enabled");
     let user = session(&url, dir.path(), Some(("scada", PASSWORD))).await.expect("user session");
     let (mv, di, own) = (namespace(&user, MV).await, namespace(&user, DI).await, namespace(&user, "urn:lfi-bridge:vision").await);
-    // The structures as the server describes them (what a generic client does).
-    let tree = Arc::new(DataTypeTreeBuilder::new(|_| true).build(&user).await.expect("the server's data types"));
-    user.add_type_loader(Arc::new(DynamicTypeLoader::new(tree.clone())));
-    let id_struct = |type_id: u32, id: &str| {
-        let info = tree.get_struct_type(&NodeId::new(mv, type_id)).expect("a MachineVision structure").clone();
-        let values = info.fields.iter().map(|f| if f.name == "Id" { Variant::from(id) } else { Variant::Empty }).collect();
-        Variant::from(ExtensionObject::from_message(DynamicStructure::new_struct(info, tree.clone(), values).expect("valid")))
-    };
+    let id_struct = id_structures(&user, mv).await;
 
     let system = browse_to(&user, &[(di, "DeviceSet"), (own, "line3")]).await;
     let auto = browse_to(&user, &[(di, "DeviceSet"), (own, "line3"), (mv, "VisionStateMachine"), (mv, "AutomaticModeStateMachine")]).await;
@@ -326,22 +335,13 @@ async fn start_single_job_raises_result_ready_with_the_parts_the_plc_reads() {
 /// unknown one is refused and the job in force stays.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn prepare_recipe_changes_the_job_as_job_request_does() {
-    use async_opcua::client::custom_types::DataTypeTreeBuilder;
-    use async_opcua::types::ExtensionObject;
-    use async_opcua::types::custom::{DynamicStructure, DynamicTypeLoader};
     let _shared = common::MACHINE.read().await;
     let dir = tempfile::tempdir().unwrap();
     let running = appliance(dir.path(), true).await;
     let url = running.opcua_url.clone().expect("OPC UA enabled");
     let user = session(&url, dir.path(), Some(("scada", PASSWORD))).await.expect("user session");
     let (mv, di, own) = (namespace(&user, MV).await, namespace(&user, DI).await, namespace(&user, "urn:lfi-bridge:vision").await);
-    let tree = Arc::new(DataTypeTreeBuilder::new(|_| true).build(&user).await.expect("the server's data types"));
-    user.add_type_loader(Arc::new(DynamicTypeLoader::new(tree.clone())));
-    let id_struct = |type_id: u32, id: &str| {
-        let info = tree.get_struct_type(&NodeId::new(mv, type_id)).expect("a MachineVision structure").clone();
-        let values = info.fields.iter().map(|f| if f.name == "Id" { Variant::from(id) } else { Variant::Empty }).collect();
-        Variant::from(ExtensionObject::from_message(DynamicStructure::new_struct(info, tree.clone(), values).expect("valid")))
-    };
+    let id_struct = id_structures(&user, mv).await;
     let recipes = browse_to(&user, &[(di, "DeviceSet"), (own, "line3"), (mv, "RecipeManagement")]).await;
     let prepare = browse_to(&user, &[(di, "DeviceSet"), (own, "line3"), (mv, "RecipeManagement"), (mv, "PrepareRecipe")]).await;
     let call = |id: &str| CallMethodRequest {

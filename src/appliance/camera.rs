@@ -403,12 +403,13 @@ impl Worker {
                 archive.offer(archive_item(&self.name, archive.unit_id(), acq_id, job_id, &results, image, label, fe, error));
             }
         }
+        // Why there was no usable frame, for OPC UA's results and the page's history.
+        let error = if estimated.is_some() { None } else { self.live.lock().unwrap_or_else(|p| p.into_inner()).last_error.clone() };
         if !results.is_empty() && self.published.receiver_count() > 0 {
             let job_id = self.in_force.lock().unwrap_or_else(|p| p.into_inner()).id;
-            let error = if estimated.is_some() { None } else { self.live.lock().unwrap_or_else(|p| p.into_inner()).last_error.clone() };
             let fe = estimated.as_ref().map(|(_, _, fe)| fe);
             // A receiver too slow to keep up loses the oldest; it says so when it reads.
-            let _ = self.published.send(Arc::new(Acquisition::of(acq_id, job_id, &results, fe, error)));
+            let _ = self.published.send(Arc::new(Acquisition::of(acq_id, job_id, &results, fe, error.clone())));
         }
         let cycle = t0.elapsed().as_secs_f64() * 1e3;
         if let Some(history) = &self.history
@@ -419,7 +420,6 @@ impl Worker {
                 (None, Some((image, label, _))) => (Some(image.clone()), label.clone(), None),
                 (None, None) => (None, String::new(), None),
             };
-            let error = if estimated.is_some() { None } else { self.live.lock().unwrap_or_else(|p| p.into_inner()).last_error.clone() };
             history.offer(super::history::Offer {
                 acq_id,
                 at_s: self.started.elapsed().as_secs_f64(),

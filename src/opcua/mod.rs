@@ -18,7 +18,7 @@ use std::time::Duration;
 
 use async_opcua::server::node_manager::memory::{InMemoryNodeManager, InMemoryNodeManagerBuilder};
 use async_opcua::server::{ServerBuilder, ServerEndpoint};
-use async_opcua::types::{AttributeId, NodeId, StatusCode, Variant};
+use async_opcua::types::{AttributeId, StatusCode, Variant};
 
 use crate::appliance::{CameraHandle, Running, StartError};
 use crate::config::{OpcuaConfig, Trigger};
@@ -295,6 +295,15 @@ impl Shell {
         }
     }
 
+    /// An identifier structure a method returns (`what` names the method in the log).
+    fn id_out(&self, cam: &CameraHandle, what: &str, type_id: u32, id: &str) -> Result<Variant, StatusCode> {
+        let mv = *self.mv.get().ok_or(StatusCode::BadInternalError)?;
+        self.types.id(mv, type_id, id).map_err(|e| {
+            tracing::error!(camera = %cam.name, "OPC UA {what}: its output cannot be made: {e}");
+            StatusCode::BadInternalError
+        })
+    }
+
     /// PrepareRecipe(ExternalId, InternalIdIn) -> (InternalIdOut, IsCompleted, Error): the
     /// PLC's JOB_REQUEST with the job id `ExternalId.Id` in decimal. An id no `[[camera.job]]`
     /// has is refused (`BadInvalidArgument`) and changes nothing; otherwise the job loads as
@@ -314,12 +323,8 @@ impl Shell {
         }
         tracing::info!(camera = %cam.name, user, "OPC UA PrepareRecipe: job {id} requested");
         let done = cam.handshake.lock().unwrap_or_else(|p| p.into_inner()).job_settled(id);
-        let mv = *self.mv.get().ok_or(StatusCode::BadInternalError)?;
-        let internal = self.types.structure(&NodeId::new(mv, 3013u32), &[("Id", Variant::from(id.to_string()))]).map_err(|e| {
-            tracing::error!(camera = %cam.name, "OPC UA PrepareRecipe: the InternalId cannot be made: {e}");
-            StatusCode::BadInternalError
-        })?;
-        Ok(vec![Variant::from(internal), Variant::from(done), Variant::from(0i32)])
+        let internal = self.id_out(cam, "PrepareRecipe", types::RECIPE_ID_INTERNAL, &id.to_string())?;
+        Ok(vec![internal, Variant::from(done), Variant::from(0i32)])
     }
 
     /// StartSingleJob(MeasId, PartId, RecipeId, ProductId, Parameters) -> (JobId, Error): one
@@ -349,12 +354,8 @@ impl Shell {
             Ok(Some(acq_id)) => {
                 let job = results::job_id(&cam.name, boot_id, acq_id);
                 tracing::info!(camera = %cam.name, user, "OPC UA StartSingleJob: job {job} (MeasId {:?}, PartId {:?})", ids.meas_id, ids.part_id);
-                let mv = *self.mv.get().ok_or(StatusCode::BadInternalError)?;
-                let job_id = self.types.structure(&NodeId::new(mv, 3016u32), &[("Id", Variant::from(job.as_str()))]).map_err(|e| {
-                    tracing::error!(camera = %cam.name, "OPC UA StartSingleJob: the JobId cannot be made: {e}");
-                    StatusCode::BadInternalError
-                })?;
-                Ok(vec![Variant::from(job_id), Variant::from(0i32)])
+                let job_id = self.id_out(cam, "StartSingleJob", types::JOB_ID, &job)?;
+                Ok(vec![job_id, Variant::from(0i32)])
             }
             Ok(None) => {
                 tracing::warn!(camera = %cam.name, user, "OPC UA StartSingleJob refused: the camera is not READY");

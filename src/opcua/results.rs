@@ -8,18 +8,11 @@ use async_opcua::nodes::{BaseEventType, Event};
 use async_opcua::types::event_field::EventField;
 use async_opcua::types::{AttributeId, ByteString, DateTime, NodeId, NumericRange, ObjectTypeId, QualifiedName, Variant};
 
-use super::types::LateTypes;
+use super::types::{self, LateTypes};
 use crate::appliance::camera::Acquisition;
 
 /// `ResultReadyEventType` in the MachineVision namespace.
 const RESULT_READY: u32 = 1024;
-/// The MachineVision structure types the event carries.
-const RESULT_ID_TYPE: u32 = 3021;
-const JOB_ID_TYPE: u32 = 3016;
-const MEAS_ID_TYPE: u32 = 3015;
-const PART_ID_TYPE: u32 = 3004;
-const RECIPE_ID_INTERNAL_TYPE: u32 = 3013;
-const CONFIGURATION_ID_TYPE: u32 = 3008;
 
 /// ResultState of an estimated frame (its parts' decisions are in the content) and of an
 /// acquisition without a usable frame (negative: the system's own error states).
@@ -91,7 +84,7 @@ impl ResultReady {
     pub fn new(types: &Arc<LateTypes>, mv: u16, source: &NodeId, camera: &str, job: &str, acq: &Acquisition, ids: &Ids) -> Self {
         let time = opcua_time(acq.at);
         let s = |t: u32, id: &str| -> Variant {
-            types.structure(&NodeId::new(mv, t), &[("Id", Variant::from(id))]).map(Variant::from).unwrap_or_else(|e| {
+            types.id(mv, t, id).unwrap_or_else(|e| {
                 tracing::warn!("OPC UA ResultReady: {e}");
                 Variant::Empty
             })
@@ -112,12 +105,12 @@ impl ResultReady {
             .set_source_name(camera.into())
             .set_severity(if acq.error.is_some() { 500 } else { 100 });
         let fields = vec![
-            ("ResultId", s(RESULT_ID_TYPE, job)),
-            ("JobId", s(JOB_ID_TYPE, job)),
-            ("MeasId", s(MEAS_ID_TYPE, &ids.meas_id)),
-            ("PartId", s(PART_ID_TYPE, &ids.part_id)),
-            ("InternalRecipeId", s(RECIPE_ID_INTERNAL_TYPE, &acq.job_id.to_string())),
-            ("InternalConfigurationId", s(CONFIGURATION_ID_TYPE, concat!("lfi-bridge ", env!("CARGO_PKG_VERSION")))),
+            ("ResultId", s(types::RESULT_ID, job)),
+            ("JobId", s(types::JOB_ID, job)),
+            ("MeasId", s(types::MEAS_ID, &ids.meas_id)),
+            ("PartId", s(types::PART_ID, &ids.part_id)),
+            ("InternalRecipeId", s(types::RECIPE_ID_INTERNAL, &acq.job_id.to_string())),
+            ("InternalConfigurationId", s(types::CONFIGURATION_ID, concat!("lfi-bridge ", env!("CARGO_PKG_VERSION")))),
             ("ResultState", Variant::from(state)),
             ("IsPartial", Variant::from(false)),
             ("IsSimulated", Variant::from(false)),

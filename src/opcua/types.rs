@@ -12,6 +12,19 @@ use async_opcua::types::{
     Variant,
 };
 
+/// MachineVision's identifier structures, by their numeric id in its namespace.
+pub const RESULT_ID: u32 = 3021;
+/// See [`RESULT_ID`].
+pub const JOB_ID: u32 = 3016;
+/// See [`RESULT_ID`].
+pub const MEAS_ID: u32 = 3015;
+/// See [`RESULT_ID`].
+pub const PART_ID: u32 = 3004;
+/// See [`RESULT_ID`].
+pub const RECIPE_ID_INTERNAL: u32 = 3013;
+/// See [`RESULT_ID`].
+pub const CONFIGURATION_ID: u32 = 3008;
+
 /// A type loader filled once the NodeSets are in the address space (the server is built with
 /// it, before its address space exists).
 #[derive(Default)]
@@ -79,16 +92,16 @@ impl LateTypes {
         Ok(true)
     }
 
-    /// A structure of type `type_id` with `fields` by name (the others null).
-    pub fn structure(&self, type_id: &NodeId, fields: &[(&str, Variant)]) -> Result<ExtensionObject, String> {
+    /// A MachineVision identifier structure (`ns=mv;i=type_id`, one of the `*_ID` types) with
+    /// `Id` set and its optional fields null.
+    pub fn id(&self, mv: u16, type_id: u32, id: &str) -> Result<Variant, String> {
+        let type_id = NodeId::new(mv, type_id);
         let (_, tree) = self.inner.get().ok_or("the MachineVision types are not loaded")?;
-        let info = tree.get_struct_type(type_id).ok_or_else(|| format!("no structure type {type_id}"))?.clone();
-        let values = info
-            .fields
-            .iter()
-            .map(|f| fields.iter().find(|(n, _)| *n == f.name).map(|(_, v)| v.clone()).unwrap_or(Variant::Empty))
-            .collect();
-        DynamicStructure::new_struct(info, tree.clone(), values).map(ExtensionObject::from_message).map_err(|e| format!("{type_id}: {e}"))
+        let info = tree.get_struct_type(&type_id).ok_or_else(|| format!("no structure type {type_id}"))?.clone();
+        let values = info.fields.iter().map(|f| if f.name == "Id" { Variant::from(id) } else { Variant::Empty }).collect();
+        DynamicStructure::new_struct(info, tree.clone(), values)
+            .map(|s| Variant::from(ExtensionObject::from_message(s)))
+            .map_err(|e| format!("{type_id}: {e}"))
     }
 }
 
