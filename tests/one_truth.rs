@@ -1,6 +1,7 @@
 //! One truth per part: for the same frames, the PLC's result registers, the robot's input words,
-//! the operator view's parts, the counters in `/metrics` and the log lines all tell the same
-//! story (after EXPECTED_TYPE, in picking order, with ACQ_ID and PART_INDEX).
+//! the operator view's parts, the counters in `/metrics`, the log lines and OPC UA's ResultReady
+//! events all tell the same story (after EXPECTED_TYPE, in picking order, with ACQ_ID and
+//! PART_INDEX).
 
 mod common;
 
@@ -55,8 +56,15 @@ async fn the_plc_the_robot_the_page_the_counters_and_the_log_agree_on_every_part
     tracing_subscriber::fmt().with_ansi(false).with_max_level(tracing::Level::INFO).with_writer(move || sink.clone()).init();
 
     let cell = Cell::start(Duration::from_millis(1)).await;
-    let running = start(&config("", &cell.robot_toml)).await;
+    let pki = tempfile::tempdir().unwrap();
+    let opcua = format!("\n[opcua]\nenabled = true\nbind = \"127.0.0.1:0\"\npki_dir = \"{}\"\n", pki.path().display());
+    let running = start(&config(&opcua, &cell.robot_toml)).await;
     let web = running.http_addr.expect("http enabled");
+    // An OPC UA client subscribed to the camera's ResultReady events before the first trigger.
+    let stop_opcua = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let url = running.opcua_url.clone().expect("OPC UA enabled");
+    let (dir, stop) = (pki.path().to_path_buf(), stop_opcua.clone());
+    let events = tokio::task::spawn_blocking(move || subscribe_results(url, dir, stop)).await.unwrap();
     let mut ctx = plc(running.modbus_addr, 1).await;
     write(&mut ctx, addr::EXPECTED_TYPE, EXPECTED_TYPE).await;
 
@@ -106,6 +114,25 @@ async fn the_plc_the_robot_the_page_the_counters_and_the_log_agree_on_every_part
     for (key, plc_type) in &plc_types {
         assert_eq!(page_types[key].0, *plc_type, "part {key:?}: TYPE_ID on the page");
     }
+
+    // OPC UA: one ResultReady per acquisition, with the parts the PLC got, in its order.
+    let plc_parts: Vec<Row> = plc_rows.iter().filter(|r| r.1 > 0).copied().collect();
+    let end = tokio::time::Instant::now() + Duration::from_secs(5);
+    let opcua_rows = loop {
+        let rows: Vec<(Row, u16)> = events.lock().unwrap().clone();
+        if rows.len() >= plc_parts.len() || tokio::time::Instant::now() > end {
+            break rows;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    assert_eq!(opcua_rows.len(), plc_parts.len(), "OPC UA's parts {opcua_rows:?} against the PLC's {plc_parts:?}");
+    for ((o, type_id), p) in opcua_rows.iter().zip(&plc_parts) {
+        assert_eq!(*type_id, plc_types[&(p.0, p.1)], "part {:?}: type_id in ResultReady", (p.0, p.1));
+        assert_eq!((o.0, o.1, o.2, o.3), (p.0, p.1, p.2, p.3), "OPC UA and PLC");
+        assert!((o.4 - p.4).abs() <= 1 && (o.5 - p.5).abs() <= 1, "OPC UA position {o:?} against the PLC's {p:?}");
+    }
+
+    stop_opcua.store(true, std::sync::atomic::Ordering::Relaxed);
 
     // The robot took exactly the parts the PLC was told to pick, in the same order.
     cell.until_acknowledged(accepted.len(), Duration::from_secs(30)).await;
@@ -157,4 +184,72 @@ async fn the_plc_the_robot_the_page_the_counters_and_the_log_agree_on_every_part
         assert_eq!((l.0, l.1, l.2, l.3), (p.0, p.1, p.2, p.3), "log and PLC");
         assert!((l.4 - p.4).abs() <= 1 && (l.5 - p.5).abs() <= 1, "log position {l:?} against the PLC's {p:?}");
     }
+}
+
+/// The parts of every ResultReady event of camera `camera1`, as rows in the order they come: an
+/// anonymous client on the None endpoint, on a thread and runtime of its own (a plant's client
+/// is another machine), until `stop` is set.
+fn subscribe_results(url: String, dir: std::path::PathBuf, stop: Arc<std::sync::atomic::AtomicBool>) -> Arc<Mutex<Vec<(Row, u16)>>> {
+    use async_opcua::client::EventCallback;
+    use async_opcua::types::{
+        AttributeId, ContentFilter, EventFilter, ExtensionObject, MonitoredItemCreateRequest, NodeId, NumericRange, QualifiedName,
+        SimpleAttributeOperand, TimestampsToReturn, Variant,
+    };
+    let rows = Arc::new(Mutex::new(Vec::new()));
+    let sink = rows.clone();
+    let ready = Arc::new(std::sync::Barrier::new(2));
+    let ready2 = ready.clone();
+    std::thread::spawn(move || {
+        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+        rt.block_on(async move {
+            let session = common::opcua::session(&url, &dir, None).await.expect("an OPC UA session");
+            let mv = common::opcua::namespace(&session, "http://opcfoundation.org/UA/MachineVision").await;
+            let di = common::opcua::namespace(&session, "http://opcfoundation.org/UA/DI/").await;
+            let own = common::opcua::namespace(&session, "urn:lfi-bridge:vision").await;
+            let system = common::opcua::browse_to(&session, &[(di, "DeviceSet"), (own, "camera1")]).await;
+            let sub = session
+                .create_subscription(
+                    Duration::from_millis(50),
+                    600,
+                    20,
+                    1000,
+                    0,
+                    true,
+                    EventCallback::new(move |fields, _| {
+                        let Some(Variant::Array(content)) = fields.and_then(|f| f.into_iter().next()) else { return };
+                        for v in content.values.iter() {
+                            let Variant::String(s) = v else { continue };
+                            let p: serde_json::Value = serde_json::from_str(s.as_ref()).expect("JSON");
+                            let tenth = |k: &str| (p[k].as_f64().unwrap() * 10.0).round() as i32;
+                            let n = |k: &str| p[k].as_u64().unwrap() as u16;
+                            let row =
+                                (n("acq_id"), n("part_index"), p["decision"] == "accept", n("reason_code"), tenth("x_mm"), tenth("y_mm"));
+                            sink.lock().unwrap().push((row, n("type_id")));
+                        }
+                    }),
+                )
+                .await
+                .expect("a subscription");
+            let content = SimpleAttributeOperand {
+                type_definition_id: NodeId::new(mv, 1024u32),
+                browse_path: Some(vec![QualifiedName::new(mv, "ResultContent")]),
+                attribute_id: AttributeId::Value as u32,
+                index_range: NumericRange::None,
+            };
+            let filter = EventFilter { where_clause: ContentFilter { elements: None }, select_clauses: Some(vec![content]) };
+            let mut item: MonitoredItemCreateRequest = system.into();
+            item.item_to_monitor.attribute_id = AttributeId::EventNotifier as u32;
+            item.requested_parameters.queue_size = 100;
+            item.requested_parameters.filter = ExtensionObject::from_message(filter);
+            let r = session.create_monitored_items(sub, TimestampsToReturn::Neither, vec![item]).await.expect("a monitored item");
+            assert!(r[0].result.status_code.is_good());
+            ready2.wait();
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+            let _ = session.disconnect().await;
+        });
+    });
+    ready.wait();
+    rows
 }

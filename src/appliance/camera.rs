@@ -180,6 +180,9 @@ impl Acquisition {
     }
 }
 
+/// How many acquisitions a listener of [`Published`] may fall behind before it misses some.
+pub const PUBLISHED: usize = 256;
+
 /// Where a camera's acquisitions are published (OPC UA subscribes; nobody need listen).
 pub type Published = tokio::sync::broadcast::Sender<std::sync::Arc<Acquisition>>;
 

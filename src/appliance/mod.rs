@@ -315,7 +315,7 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
         } else {
             (None, None)
         };
-        let published: camera::Published = tokio::sync::broadcast::channel(256).0;
+        let published: camera::Published = tokio::sync::broadcast::channel(camera::PUBLISHED).0;
         let worker = Worker {
             name: cam.name.clone(),
             trigger: cam.trigger,

@@ -28,6 +28,17 @@ use model::{Call, CameraNodes, Vision};
 /// How often the cameras' states are read into the model (a change shows within this).
 const STATE_PERIOD: Duration = Duration::from_millis(100);
 
+/// The most events (or values) one monitored item keeps for its client between publishes, and
+/// the most a client may ask for. The server's thread runs at a lower priority than the cameras:
+/// during a burst of fast cycles it may publish nothing for a second, and a subscriber must still
+/// get every ResultReady (async-opcua's default of 10 dropped events 9-17 of 18 quick cycles in
+/// `tests/one_truth.rs`). As many as the cameras' result feed holds for the server
+/// (`camera::PUBLISHED`); at a few kB per event, 24 sessions with one full item each stay under
+/// 30 MB.
+const ITEM_QUEUE: usize = crate::appliance::camera::PUBLISHED;
+/// Notification messages a subscription keeps waiting for its client's publish requests.
+const SUBSCRIPTION_QUEUE: usize = 100;
+
 /// The server's counters, for the operator view and `/metrics`.
 #[derive(Debug, Default)]
 pub struct Stats {
@@ -184,6 +195,8 @@ fn builder(cfg: &OpcuaConfig, addr: SocketAddr) -> ServerBuilder {
     let limits = b.limits_mut();
     limits.subscriptions.max_subscriptions_per_session = cfg.max_subscriptions_per_session;
     limits.subscriptions.max_monitored_items_per_sub = cfg.max_monitored_items_per_subscription;
+    limits.subscriptions.max_monitored_item_queue_size = ITEM_QUEUE;
+    limits.subscriptions.max_queued_notifications = SUBSCRIPTION_QUEUE;
     b
 }
 
