@@ -75,6 +75,22 @@ async def main(a):
         for part in event.ResultContent:
             print(json.dumps(json.loads(part)))
 
+        # The same result by query (the camera keeps its newest, [opcua] results_kept).
+        results = await system.get_child([f"{mv}:ResultManagement"])
+        _, result, _ = await results.call_method(f"{mv}:GetResultById", ua.ResultIdDataType(Id=job_id.Id), ua.Int32(0))
+        # ResultDataType's content is BaseDataType[]: each String comes inside a Variant.
+        same = [v.Value for v in result.ResultContent] == list(event.ResultContent)
+        print(f"GetResultById {result.ResultId.Id}: {len(result.ResultContent)} part(s), as the event: {same}")
+        complete, count, _, listed, _ = await results.call_method(
+            f"{mv}:GetResultListFiltered",
+            ua.Int32(0),  # any ResultState
+            ua.MeasIdDataType(Id=a.meas_id),
+            *[t(Id="") for t in (ua.PartIdDataType, ua.RecipeIdExternalDataType, ua.RecipeIdInternalDataType,
+                                 ua.ConfigurationIdDataType, ua.ConfigurationIdDataType, ua.ProductIdDataType, ua.JobIdDataType)],
+            ua.UInt32(10), ua.UInt32(0), ua.Int32(0),  # MaxResults, StartIndex, Timeout
+        )
+        print(f"GetResultListFiltered MeasId {a.meas_id}: {count} result(s), newest {listed[0].ResultId.Id if listed else None}")
+
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

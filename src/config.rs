@@ -180,6 +180,8 @@ mod raw {
         pub max_subscriptions_per_session: i64,
         #[serde(default = "default_opcua_items")]
         pub max_monitored_items_per_subscription: i64,
+        #[serde(default = "default_opcua_results")]
+        pub results_kept: i64,
         #[serde(default)]
         pub users: Vec<OpcuaUser>,
     }
@@ -201,6 +203,9 @@ mod raw {
     fn default_opcua_items() -> i64 {
         1000
     }
+    fn default_opcua_results() -> i64 {
+        100
+    }
     impl Default for Opcua {
         fn default() -> Self {
             Self {
@@ -212,6 +217,7 @@ mod raw {
                 max_sessions: default_opcua_sessions(),
                 max_subscriptions_per_session: default_opcua_subscriptions(),
                 max_monitored_items_per_subscription: default_opcua_items(),
+                results_kept: default_opcua_results(),
                 users: Vec::new(),
             }
         }
@@ -667,6 +673,9 @@ pub struct OpcuaConfig {
     pub max_subscriptions_per_session: usize,
     /// Monitored items per subscription.
     pub max_monitored_items_per_subscription: usize,
+    /// Results per camera that GetResultById and GetResultListFiltered find (the newest; one
+    /// acquisition is one result).
+    pub results_kept: usize,
     /// Users who may call methods: name and password (read from its file at start-up).
     pub users: Vec<OpcuaUser>,
 }
@@ -888,6 +897,7 @@ fn opcua_of(c: &Check<'_>, o: &raw::Opcua, base: &Path) -> Result<Option<OpcuaCo
             1,
             100_000,
         )?,
+        results_kept: c.int("opcua.results_kept", o.results_kept, 1, 10_000)?,
         users,
     }))
 }
@@ -1331,6 +1341,9 @@ mod tests {
         assert!(e.contains("opcua.users[0].password_file") && e.contains("/etc/lfi/nowhere.pw"), "{e}");
         let e = err(&format!("[opcua]\nenabled = true\nmax_sessions = 4\n{MIN}"));
         assert!(e.contains("opcua.max_sessions = 4") && e.contains("24..="), "{e}");
+        assert_eq!(o.results_kept, 100);
+        let e = err(&format!("[opcua]\nenabled = true\nresults_kept = 0\n{MIN}"));
+        assert!(e.contains("opcua.results_kept = 0") && e.contains("1..="), "{e}");
         let e = err(&format!("[http]\nbind = \"0.0.0.0:4840\"\n[opcua]\nenabled = true\n{MIN}"));
         assert!(e.contains("opcua.bind") && e.contains("operator view"), "{e}");
     }

@@ -327,6 +327,83 @@ async fn start_single_job_raises_result_ready_with_the_parts_the_plc_reads() {
         assert_eq!(p["job_id"], job.as_str());
         assert_eq!((p["meas_id"].as_str(), p["part_id"].as_str()), (Some("M-17"), Some("P-9")));
     }
+
+    // The same result by query: GetResultById and GetResultListFiltered return the event's
+    // content and ids.
+    let results = browse_to(&user, &[(di, "DeviceSet"), (own, "line3"), (mv, "ResultManagement")]).await;
+    let by_id = browse_to(&user, &[(di, "DeviceSet"), (own, "line3"), (mv, "ResultManagement"), (mv, "GetResultById")]).await;
+    let filtered = browse_to(&user, &[(di, "DeviceSet"), (own, "line3"), (mv, "ResultManagement"), (mv, "GetResultListFiltered")]).await;
+    let result_fields = |v: &Variant| -> (Option<Variant>, Option<Variant>, Option<Variant>, Option<Variant>) {
+        let Variant::ExtensionObject(o) = v else { panic!("a result is {v:?}") };
+        let s = o.inner_as::<DynamicStructure>().expect("a ResultDataType");
+        let f = |n: &str| s.get_field_by_name(n).cloned();
+        (f("ResultId").as_ref().and_then(id_of), f("MeasId").as_ref().and_then(id_of), f("ResultState"), f("ResultContent"))
+    };
+    let content_of = |v: Option<Variant>| -> Vec<String> {
+        let Some(Variant::Array(a)) = v else { panic!("ResultContent is {v:?}") };
+        a.values
+            .iter()
+            .map(|e| match e {
+                Variant::String(s) => s.as_ref().to_string(),
+                Variant::Variant(inner) => match inner.as_ref() {
+                    Variant::String(s) => s.as_ref().to_string(),
+                    other => panic!("a content element is {other:?}"),
+                },
+                other => panic!("a content element is {other:?}"),
+            })
+            .collect()
+    };
+    let event_content = content_of(Some(fields[2].clone()));
+    let r = user
+        .call_one(CallMethodRequest {
+            object_id: results.clone(),
+            method_id: by_id.clone(),
+            input_arguments: Some(vec![id_struct(3021, &job), Variant::from(0i32)]),
+        })
+        .await
+        .expect("call answered");
+    assert_eq!(r.status_code, StatusCode::Good, "{r:?}");
+    let out = r.output_arguments.unwrap_or_default();
+    let (rid, meas, state, content) = result_fields(&out[1]);
+    assert_eq!((rid, meas, state), (Some(Variant::from(job.as_str())), Some(Variant::from("M-17")), Some(Variant::from(1i32))));
+    assert_eq!(content_of(content), event_content, "GetResultById's content is the event's");
+    let r = user
+        .call_one(CallMethodRequest {
+            object_id: results.clone(),
+            method_id: by_id.clone(),
+            input_arguments: Some(vec![id_struct(3021, "line3/0/0"), Variant::from(0i32)]),
+        })
+        .await
+        .expect("call answered");
+    assert_eq!(r.status_code, StatusCode::BadNotFound, "a result never made");
+    let list = |meas: &str| CallMethodRequest {
+        object_id: results.clone(),
+        method_id: filtered.clone(),
+        input_arguments: Some(vec![
+            Variant::from(0i32),
+            id_struct(3015, meas),
+            id_struct(3004, ""),
+            id_struct(3002, ""),
+            id_struct(3013, ""),
+            id_struct(3008, ""),
+            id_struct(3008, ""),
+            id_struct(3003, ""),
+            id_struct(3016, ""),
+            Variant::from(10u32),
+            Variant::from(0u32),
+            Variant::from(-1i32),
+        ]),
+    };
+    let r = user.call_one(list("M-17")).await.expect("call answered");
+    assert_eq!(r.status_code, StatusCode::Good, "{r:?}");
+    let out = r.output_arguments.unwrap_or_default();
+    assert_eq!((&out[0], &out[1]), (&Variant::from(true), &Variant::from(1u32)), "one result measured as M-17: {out:?}");
+    let Variant::Array(found) = &out[3] else { panic!("ResultList is {:?}", out[3]) };
+    assert_eq!(found.values.len(), 1);
+    assert_eq!(content_of(result_fields(&found.values[0]).3), event_content, "the list's result is the event's");
+    let r = user.call_one(list("M-18")).await.expect("call answered");
+    let out = r.output_arguments.unwrap_or_default();
+    assert_eq!(&out[1], &Variant::from(0u32), "no result measured as M-18");
     let _ = user.disconnect().await;
     running.stop().await;
 }

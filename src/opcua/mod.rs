@@ -12,7 +12,7 @@ pub mod types;
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Duration;
 
@@ -91,6 +91,8 @@ pub async fn attach(running: &mut Running, cfg: &OpcuaConfig, triggers: Vec<Trig
         types: types.clone(),
         triggers: triggers.clone(),
         pending: Mutex::new(HashMap::new()),
+        kept: cameras.iter().map(|_| Mutex::new(results::Store::new(cfg.results_kept))).collect(),
+        handles: AtomicU32::new(0),
         mv: OnceLock::new(),
     });
     let handler: model::Handler = {
@@ -263,6 +265,10 @@ struct Shell {
     /// What StartSingleJob asked to come back with an acquisition's results, by (camera,
     /// ACQ_ID): entered before the acquisition starts, taken when its results are reported.
     pending: Mutex<HashMap<(usize, u16), results::Ids>>,
+    /// Each camera's newest results, for the result management's methods.
+    kept: Vec<Mutex<results::Store>>,
+    /// The last ResultHandle given out (each query gets its own; nothing is held for it).
+    handles: AtomicU32,
     /// The MachineVision namespace's index.
     mv: OnceLock<u16>,
 }
@@ -305,7 +311,85 @@ impl Shell {
             }
             Call::StartSingleJob => self.start_single_job(camera, args, user),
             Call::PrepareRecipe => self.prepare_recipe(camera, args, user),
+            Call::GetResultById => self.result_by_id(camera, args, user),
+            Call::GetResultListFiltered => self.result_list(camera, args, user),
         }
+    }
+
+    /// A ResultHandle: unique while the server runs. The results are answered whole, so the
+    /// server holds nothing for a handle (ReleaseResultHandle is not needed).
+    fn handle(&self) -> Variant {
+        Variant::from(self.handles.fetch_add(1, Relaxed).wrapping_add(1))
+    }
+
+    /// A kept result as ResultDataType.
+    fn result_data(&self, cam: &CameraHandle, k: &results::Kept) -> Result<Variant, StatusCode> {
+        let mv = *self.mv.get().ok_or(StatusCode::BadInternalError)?;
+        k.data(&self.types, mv).map_err(|e| {
+            tracing::error!(camera = %cam.name, "OPC UA: result {} cannot be encoded: {e}", k.id);
+            StatusCode::BadInternalError
+        })
+    }
+
+    /// GetResultById(ResultId, Timeout) -> (ResultHandle, Result, Error): one of the camera's
+    /// kept results (`[opcua] results_kept`); an id it does not keep is `BadNotFound`.
+    fn result_by_id(&self, camera: usize, args: &[Variant], user: &str) -> Result<Vec<Variant>, StatusCode> {
+        let cam = &self.cameras[camera];
+        let id = args.first().map(|v| types::field(v, "Id")).unwrap_or_default();
+        let found = self.kept[camera].lock().unwrap_or_else(|p| p.into_inner()).by_id(&id).cloned();
+        let Some(k) = found else {
+            tracing::info!(camera = %cam.name, user, "OPC UA GetResultById: no result {id:?} kept");
+            return Err(StatusCode::BadNotFound);
+        };
+        Ok(vec![self.handle(), self.result_data(cam, &k)?, Variant::from(0i32)])
+    }
+
+    /// GetResultListFiltered(ResultState, MeasId, PartId, ExternalRecipeId, InternalRecipeId,
+    /// ExternalConfigurationId, InternalConfigurationId, ProductId, JobId, MaxResults,
+    /// StartIndex, Timeout) -> (IsComplete, ResultCount, ResultHandle, ResultList, Error): the
+    /// kept results matching every filter set, newest first.
+    fn result_list(&self, camera: usize, args: &[Variant], user: &str) -> Result<Vec<Variant>, StatusCode> {
+        let cam = &self.cameras[camera];
+        let id = |i: usize| args.get(i).map(|v| types::field(v, "Id")).unwrap_or_default();
+        let number = |i: usize| -> Result<i64, StatusCode> {
+            match args.get(i) {
+                None | Some(Variant::Empty) => Ok(0),
+                Some(Variant::Int32(n)) => Ok(i64::from(*n)),
+                Some(Variant::UInt32(n)) => Ok(i64::from(*n)),
+                Some(other) => {
+                    tracing::warn!(camera = %cam.name, user, "OPC UA GetResultListFiltered refused: argument {} is {other:?}, not a number", i + 1);
+                    Err(StatusCode::BadTypeMismatch)
+                }
+            }
+        };
+        let filter = results::Filter {
+            state: number(0)? as i32,
+            meas_id: id(1),
+            part_id: id(2),
+            internal_recipe: id(4),
+            internal_configuration: id(6),
+            job: id(8),
+            unkept: vec![id(3), id(5), id(7)],
+        };
+        let (max, start) = (number(9)? as usize, number(10)? as usize);
+        let (count, complete, list) = {
+            let store = self.kept[camera].lock().unwrap_or_else(|p| p.into_inner());
+            let page = store.list(&filter, max, start);
+            (page.count, page.complete, page.results.into_iter().cloned().collect::<Vec<_>>())
+        };
+        let list = list.iter().map(|k| self.result_data(cam, k)).collect::<Result<Vec<_>, _>>()?;
+        let list = async_opcua::types::Array::new(async_opcua::types::VariantScalarTypeId::ExtensionObject, list).map_err(|e| {
+            tracing::error!(camera = %cam.name, "OPC UA GetResultListFiltered: the list cannot be made: {e}");
+            StatusCode::BadInternalError
+        })?;
+        tracing::debug!(camera = %cam.name, user, "OPC UA GetResultListFiltered {filter:?}: {} of {count}", list.values.len());
+        Ok(vec![
+            Variant::from(complete),
+            Variant::from(u32::try_from(count).unwrap_or(u32::MAX)),
+            self.handle(),
+            Variant::Array(Box::new(list)),
+            Variant::from(0i32),
+        ])
     }
 
     /// An identifier structure a method returns (`what` names the method in the log).
@@ -382,8 +466,8 @@ impl Shell {
     }
 }
 
-/// Raises a ResultReady event for every acquisition camera `index` publishes, on its object and
-/// on the Server object (clients subscribe to either).
+/// Keeps every acquisition camera `index` publishes as a result and raises its ResultReady
+/// event on the camera's object (the server hands it to the Server object's subscribers too).
 async fn report_results(
     shell: &Shell,
     handle: &async_opcua::server::ServerHandle,
@@ -410,8 +494,9 @@ async fn report_results(
             },
         };
         let ids = shell.pending.lock().unwrap_or_else(|p| p.into_inner()).remove(&(index, acq.acq_id)).unwrap_or_default();
-        let job = results::job_id(&cam.name, boot_id, acq.acq_id);
-        let event = results::ResultReady::new(&shell.types, mv, &nodes.system, &cam.name, &job, &acq, &ids);
+        let kept = results::Kept::new(&cam.name, boot_id, &acq, ids);
+        let event = results::ResultReady::new(&shell.types, mv, &nodes.system, &cam.name, &kept);
+        shell.kept[index].lock().unwrap_or_else(|p| p.into_inner()).push(kept);
         // Raised on the camera's object; the server hands it to Server's subscribers too.
         handle.subscriptions().notify_events([(&event as &dyn async_opcua::nodes::Event, &nodes.system)].into_iter());
         shell.stats.events.fetch_add(1, Relaxed);

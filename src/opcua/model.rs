@@ -55,6 +55,10 @@ pub enum Call {
     Abort,
     /// RecipeManagement.PrepareRecipe: JOB_REQUEST.
     PrepareRecipe,
+    /// ResultManagement.GetResultById: one of the kept results.
+    GetResultById,
+    /// ResultManagement.GetResultListFiltered: the kept results that match.
+    GetResultListFiltered,
 }
 
 impl Call {
@@ -67,6 +71,8 @@ impl Call {
             "Stop" => Call::Stop,
             "Abort" => Call::Abort,
             "PrepareRecipe" => Call::PrepareRecipe,
+            "GetResultById" => Call::GetResultById,
+            "GetResultListFiltered" => Call::GetResultListFiltered,
             _ => return None,
         })
     }

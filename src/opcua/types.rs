@@ -24,6 +24,8 @@ pub const PART_ID: u32 = 3004;
 pub const RECIPE_ID_INTERNAL: u32 = 3013;
 /// See [`RESULT_ID`].
 pub const CONFIGURATION_ID: u32 = 3008;
+/// `ResultDataType`: one result, as the result management's methods return it.
+pub const RESULT: u32 = 3006;
 
 /// A type loader filled once the NodeSets are in the address space (the server is built with
 /// it, before its address space exists).
@@ -95,10 +97,16 @@ impl LateTypes {
     /// A MachineVision identifier structure (`ns=mv;i=type_id`, one of the `*_ID` types) with
     /// `Id` set and its optional fields null.
     pub fn id(&self, mv: u16, type_id: u32, id: &str) -> Result<Variant, String> {
+        self.structure(mv, type_id, |f| Ok(if f == "Id" { Variant::from(id) } else { Variant::Empty }))
+    }
+
+    /// The MachineVision structure `ns=mv;i=type_id` with each field's value from `value` (by
+    /// the field's name; `Variant::Empty` leaves an optional field out).
+    pub fn structure(&self, mv: u16, type_id: u32, value: impl Fn(&str) -> Result<Variant, String>) -> Result<Variant, String> {
         let type_id = NodeId::new(mv, type_id);
         let (_, tree) = self.inner.get().ok_or("the MachineVision types are not loaded")?;
         let info = tree.get_struct_type(&type_id).ok_or_else(|| format!("no structure type {type_id}"))?.clone();
-        let values = info.fields.iter().map(|f| if f.name == "Id" { Variant::from(id) } else { Variant::Empty }).collect();
+        let values = info.fields.iter().map(|f| value(&f.name)).collect::<Result<Vec<_>, _>>()?;
         DynamicStructure::new_struct(info, tree.clone(), values)
             .map(|s| Variant::from(ExtensionObject::from_message(s)))
             .map_err(|e| format!("{type_id}: {e}"))
