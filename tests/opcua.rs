@@ -621,3 +621,117 @@ async fn twenty_subscribers_and_two_hundred_reconnects_do_not_slow_the_plc() {
     assert!(lc50 <= 2.0 * qc50.max(10.0), "loaded cycle median {lc50:.1} ms against a quiet median of {qc50:.1} ms");
     running.stop().await;
 }
+
+/// What the server does with bytes no OPC UA client sends: it closes that connection within
+/// `wait` (true), or keeps it open (false).
+fn closed_after(addr: std::net::SocketAddr, bytes: &[u8], wait: Duration) -> bool {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(addr).expect("connect");
+    s.set_read_timeout(Some(wait)).unwrap();
+    if s.write_all(bytes).is_err() {
+        return true;
+    }
+    let mut buf = [0u8; 4096];
+    let end = std::time::Instant::now() + wait;
+    while std::time::Instant::now() < end {
+        match s.read(&mut buf) {
+            Ok(0) => return true,
+            Ok(_) => {} // an ERR message first, then the close
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => return false,
+            Err(_) => return true, // reset
+        }
+    }
+    false
+}
+
+/// An OPC UA TCP Hello for `url` (the first message of every connection).
+fn hello(url: &str, max_message: u32) -> Vec<u8> {
+    let mut body = Vec::new();
+    for v in [0u32, 65535, 65535, max_message, 0] {
+        body.extend(v.to_le_bytes());
+    }
+    body.extend((url.len() as i32).to_le_bytes());
+    body.extend(url.as_bytes());
+    let mut m = b"HELF".to_vec();
+    m.extend(((body.len() + 8) as u32).to_le_bytes());
+    m.extend(body);
+    m
+}
+
+/// Malformed and oversized messages close their own connection only: a session already open
+/// keeps reading, a new one opens, and the server's thread never panics. (What cannot be
+/// decoded is closed at once; a message claiming more bytes than come is closed by the server's
+/// 5 s hello timeout, its bytes not kept: a client streaming 3 GB into a claimed 4 GB message
+/// for those 5 s left the process's memory at 111 -> 117 MB, measured once, not asserted.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_malformed_or_oversized_message_closes_its_connection_only() {
+    let _shared = common::MACHINE.read().await;
+    let panics = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let seen = panics.clone();
+    let previous = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        if std::thread::current().name() == Some("opcua") {
+            seen.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        }
+        previous(info);
+    }));
+    let dir = tempfile::tempdir().unwrap();
+    let running = appliance(dir.path(), true).await;
+    let url = running.opcua_url.clone().expect("OPC UA enabled");
+    let addr: std::net::SocketAddr = url.trim_start_matches("opc.tcp://").trim_end_matches('/').parse().expect("an address");
+    let open = session(&url, dir.path(), None).await.expect("a session before");
+    let ns_array: NodeId = async_opcua::types::VariableId::Server_NamespaceArray.into();
+    let before = value(&open, &ns_array).await;
+
+    let mut random = vec![0u8; 70_000];
+    let mut x = 0x2545_f491_u32;
+    for b in random.iter_mut() {
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        *b = x as u8;
+    }
+    let mut oversized_chunk = hello(&url, 0);
+    oversized_chunk.extend(b"MSGF");
+    oversized_chunk.extend(u32::MAX.to_le_bytes());
+    oversized_chunk.extend([0u8; 64]);
+    let mut garbage_open = hello(&url, 0);
+    garbage_open.extend(b"OPNF");
+    garbage_open.extend(208u32.to_le_bytes());
+    garbage_open.extend(&random[..200]);
+    let mut unknown_channel = hello(&url, 0);
+    unknown_channel.extend(b"MSGF");
+    unknown_channel.extend(32u32.to_le_bytes());
+    unknown_channel.extend([0x5a; 24]);
+    let mut huge_url = b"HELF".to_vec();
+    huge_url.extend(70_000u32.to_le_bytes());
+    for v in [0u32, 65535, 65535, 0, 0] {
+        huge_url.extend(v.to_le_bytes());
+    }
+    huge_url.extend(69_960i32.to_le_bytes());
+    huge_url.extend(std::iter::repeat_n(b'a', 69_960));
+    let cases: Vec<(&str, Vec<u8>)> = vec![
+        ("random bytes", random.clone()),
+        ("a Hello claiming 4 GB", [b"HELF".as_slice(), &u32::MAX.to_le_bytes(), &[0u8; 32]].concat()),
+        ("a Hello with a 70 kB endpoint URL", huge_url),
+        ("a 4 GB chunk after a Hello", oversized_chunk),
+        ("an OpenSecureChannel of garbage", garbage_open),
+        ("a message on a channel never opened", unknown_channel),
+        ("a message type that does not exist", [b"XYZF".as_slice(), &16u32.to_le_bytes(), &[1u8; 8]].concat()),
+    ];
+    // All at once (the slow ones wait out the server's 5 s hello timeout).
+    let tries: Vec<_> = cases
+        .into_iter()
+        .map(|(what, bytes)| (what, tokio::task::spawn_blocking(move || closed_after(addr, &bytes, Duration::from_secs(10)))))
+        .collect();
+    for (what, closed) in tries {
+        assert!(closed.await.unwrap(), "{what}: the connection stays open");
+    }
+    assert_eq!(value(&open, &ns_array).await, before, "the open session no longer reads");
+    let again = session(&url, dir.path(), None).await.expect("a new session after");
+    assert_eq!(value(&again, &ns_array).await, before);
+    assert_eq!(panics.load(std::sync::atomic::Ordering::SeqCst), 0, "the OPC UA server panicked");
+    let _ = again.disconnect().await;
+    let _ = open.disconnect().await;
+    running.stop().await;
+}
