@@ -14,6 +14,11 @@ command -v pkg-config >/dev/null 2>&1 || need+=(pkg-config)
 pkg-config --exists aravis-0.8 2>/dev/null || need+=(libaravis-dev libusb-1.0-0-dev)
 command -v arv-fake-gv-camera-0.8 >/dev/null 2>&1 || need+=(aravis-tools)
 command -v arv-tool-0.8 >/dev/null 2>&1 || need+=(aravis-tools-cli)
+# Python's venv, for asyncua (PyPI), the independent OPC UA client of the tests.
+if [ "${LFI_WITH_PYTHON:-0}" = 1 ]; then
+  command -v python3 >/dev/null 2>&1 || need+=(python3)
+  python3 -c "import ensurepip, venv" >/dev/null 2>&1 || need+=(python3-venv)
+fi
 if [ "${LFI_WITH_BROWSER:-0}" = 1 ]; then
   command -v chromium >/dev/null 2>&1 || need+=(chromium)
   command -v chromedriver >/dev/null 2>&1 || need+=(chromium-driver)

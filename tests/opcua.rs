@@ -17,8 +17,6 @@ use common::opcua::*;
 use lfi_bridge::config::Config;
 use lfi_bridge::registers::addr;
 
-const MV: &str = "http://opcfoundation.org/UA/MachineVision";
-const DI: &str = "http://opcfoundation.org/UA/DI/";
 const PASSWORD: &str = "line-3-secret";
 
 /// An appliance with the OPC UA server on a free port, its PKI and a user's password file in
@@ -442,91 +440,6 @@ async fn prepare_recipe_changes_the_job_as_job_request_does() {
     running.stop().await;
 }
 
-/// OPC UA clients on a thread of their own at the lowest priority (they are other machines):
-/// `subscribers` anonymous sessions subscribed to the camera's ResultReady events, each
-/// counting what it receives, and, while `churn` is set, one client connecting and
-/// disconnecting as fast as it can.
-struct OpcuaLoad {
-    received: Vec<Arc<std::sync::atomic::AtomicUsize>>,
-    subscribed: Arc<std::sync::atomic::AtomicUsize>,
-    churn: Arc<std::sync::atomic::AtomicBool>,
-    churned: Arc<std::sync::atomic::AtomicUsize>,
-    stop: Arc<std::sync::atomic::AtomicBool>,
-    thread: std::thread::JoinHandle<()>,
-}
-
-impl OpcuaLoad {
-    fn start(url: String, dir: std::path::PathBuf, subscribers: usize) -> Self {
-        use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering::Relaxed};
-        let received: Vec<_> = (0..subscribers).map(|_| Arc::new(AtomicUsize::new(0))).collect();
-        let (subscribed, churn, churned, stop) = (
-            Arc::new(AtomicUsize::new(0)),
-            Arc::new(AtomicBool::new(false)),
-            Arc::new(AtomicUsize::new(0)),
-            Arc::new(AtomicBool::new(false)),
-        );
-        let (r2, s2, c2, n2, st2) = (received.clone(), subscribed.clone(), churn.clone(), churned.clone(), stop.clone());
-        let thread = std::thread::spawn(move || {
-            // SAFETY: setpriority on this thread's own id.
-            unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 19) };
-            let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
-            rt.block_on(async move {
-                use async_opcua::client::EventCallback;
-                use async_opcua::types::{ContentFilter, EventFilter, ExtensionObject, MonitoredItemCreateRequest, SimpleAttributeOperand};
-                let mut sessions = Vec::new();
-                for counter in r2 {
-                    let s = session(&url, &dir, None).await.expect("a subscriber's session");
-                    let (mv, di, own) = (namespace(&s, MV).await, namespace(&s, DI).await, namespace(&s, "urn:lfi-bridge:vision").await);
-                    let system = browse_to(&s, &[(di, "DeviceSet"), (own, "line3")]).await;
-                    let sub = s
-                        .create_subscription(
-                            Duration::from_millis(50),
-                            100,
-                            20,
-                            1000,
-                            0,
-                            true,
-                            EventCallback::new(move |_, _| {
-                                counter.fetch_add(1, Relaxed);
-                            }),
-                        )
-                        .await
-                        .expect("subscription");
-                    let content = SimpleAttributeOperand {
-                        type_definition_id: NodeId::new(mv, 1024u32),
-                        browse_path: Some(vec![QualifiedName::new(mv, "ResultContent")]),
-                        attribute_id: async_opcua::types::AttributeId::Value as u32,
-                        index_range: async_opcua::types::NumericRange::None,
-                    };
-                    let filter = EventFilter { where_clause: ContentFilter { elements: None }, select_clauses: Some(vec![content]) };
-                    let mut item: MonitoredItemCreateRequest = system.into();
-                    item.item_to_monitor.attribute_id = async_opcua::types::AttributeId::EventNotifier as u32;
-                    item.requested_parameters.queue_size = 100;
-                    item.requested_parameters.filter = ExtensionObject::from_message(filter);
-                    let r = s.create_monitored_items(sub, TimestampsToReturn::Neither, vec![item]).await.expect("monitored item");
-                    assert!(r[0].result.status_code.is_good());
-                    sessions.push(s);
-                    s2.fetch_add(1, Relaxed);
-                }
-                while !st2.load(Relaxed) {
-                    if c2.load(Relaxed) {
-                        if let Ok(s) = session(&url, &dir, None).await {
-                            let _ = s.disconnect().await;
-                            n2.fetch_add(1, Relaxed);
-                        }
-                    } else {
-                        tokio::time::sleep(Duration::from_millis(5)).await;
-                    }
-                }
-                for s in sessions {
-                    let _ = s.disconnect().await;
-                }
-            });
-        });
-        Self { received, subscribed, churn, churned, stop, thread }
-    }
-}
-
 /// Nothing OPC UA clients do slows the PLC: 20 sessions subscribed to every ResultReady and a
 /// client connecting and disconnecting 200 times as fast as it can, against quiet phases of the
 /// same run; and every subscriber gets every acquisition's event. As the operator view's test
@@ -561,7 +474,7 @@ async fn twenty_subscribers_and_two_hundred_reconnects_do_not_slow_the_plc() {
         sample(&mut ctx, &mut quiet_reads, &mut quiet_cycles).await;
     }
     const SUBSCRIBERS: usize = 20;
-    let load = OpcuaLoad::start(url, dir.path().to_path_buf(), SUBSCRIBERS);
+    let load = OpcuaLoad::start(url, dir.path().to_path_buf(), "line3", SUBSCRIBERS);
     let until = Instant::now() + Duration::from_secs(60);
     while load.subscribed.load(Relaxed) < SUBSCRIBERS {
         assert!(Instant::now() < until, "only {} subscribers connected", load.subscribed.load(Relaxed));
@@ -733,5 +646,64 @@ async fn a_malformed_or_oversized_message_closes_its_connection_only() {
     assert_eq!(panics.load(std::sync::atomic::Ordering::SeqCst), 0, "the OPC UA server panicked");
     let _ = again.disconnect().await;
     let _ = open.disconnect().await;
+    running.stop().await;
+}
+
+/// The Python that has asyncua: `LFI_ASYNCUA_PYTHON` (scripts/test.sh makes a venv under
+/// target/ with it), else `python3` if it has asyncua.
+fn asyncua_python() -> Option<String> {
+    let has = |py: &str| std::process::Command::new(py).args(["-c", "import asyncua"]).output().is_ok_and(|o| o.status.success());
+    std::env::var("LFI_ASYNCUA_PYTHON").ok().filter(|p| has(p)).or_else(|| has("python3").then(|| "python3".to_string()))
+}
+
+/// Python's asyncua, the independent client a plant would use (`scripts/opcua-client.py`, as the
+/// README shows it): it browses to the vision system, reads its state, calls StartSingleJob and
+/// receives ResultReady with the parts the PLC reads, then gets the same result by
+/// GetResultById and GetResultListFiltered.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn asyncua_starts_a_job_and_gets_the_parts_the_plc_reads() {
+    let Some(python) = asyncua_python() else {
+        eprintln!("NOT RUN: no Python with asyncua (scripts/test.sh installs it in target/asyncua-venv; or set LFI_ASYNCUA_PYTHON)");
+        return;
+    };
+    let _shared = common::MACHINE.read().await;
+    let dir = tempfile::tempdir().unwrap();
+    let running = appliance(dir.path(), false).await;
+    let url = running.opcua_url.clone().expect("OPC UA enabled");
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/scripts/opcua-client.py");
+    let pw = dir.path().join("scada.pw");
+    let args = ["--url", &url, "--camera", "line3", "--user", "scada", "--password-file", pw.to_str().unwrap(), "--meas-id", "M-5"];
+    let mut cmd = tokio::process::Command::new(&python);
+    cmd.arg(script).args(args).kill_on_drop(true);
+    let out =
+        tokio::time::timeout(Duration::from_secs(120), cmd.output()).await.expect("the client finishes within 120 s").expect("python runs");
+    let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(out.status.success(), "the client failed:\n{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.first().copied(), Some("line3: Operational Ready"), "{stdout}");
+    let job = lines.iter().find_map(|l| l.strip_prefix("StartSingleJob -> JobId ")).expect("a JobId").to_string();
+    assert!(lines.contains(&format!("ResultReady {job}: MeasId M-5, ResultState 1").as_str()), "{stdout}");
+    let parts: Vec<serde_json::Value> =
+        lines.iter().filter(|l| l.starts_with('{')).map(|l| serde_json::from_str(l).expect("JSON")).collect();
+    assert!(lines.iter().any(|l| l.starts_with(&format!("GetResultById {job}: {} part(s), as the event: True", parts.len()))), "{stdout}");
+    assert!(lines.contains(&format!("GetResultListFiltered MeasId M-5: 1 result(s), newest {job}").as_str()), "{stdout}");
+
+    let mut plc_ctx = plc(running.modbus_addr, 1).await;
+    let block = plc_results(&mut plc_ctx).await;
+    let plc_parts: Vec<_> = block.iter().filter(|r| r.1 > 0).collect();
+    assert!(!parts.is_empty() && parts.len() == plc_parts.len(), "parts: asyncua {parts:?}, PLC {block:?}");
+    for (p, r) in parts.iter().zip(&plc_parts) {
+        assert_eq!(
+            (p["acq_id"].as_u64(), p["part_index"].as_u64(), p["type_id"].as_u64()),
+            (Some(r.0.into()), Some(r.1.into()), Some(r.3.into()))
+        );
+        assert_eq!(p["decision"], if r.4 == 1 { "accept" } else { "reject" }, "{p}");
+        assert_eq!(p["reason_code"], r.5);
+        assert_eq!(
+            (p["angle_deg"].as_f64().unwrap() as f32, p["x_mm"].as_f64().unwrap() as f32, p["y_mm"].as_f64().unwrap() as f32),
+            (r.6, r.7, r.8)
+        );
+        assert_eq!(p["job_id"], job.as_str());
+    }
     running.stop().await;
 }

@@ -1,7 +1,12 @@
-//! An OPC UA client of the appliance (async-opcua's), as the OPC UA tests use it.
+//! An OPC UA client of the appliance (async-opcua's), as the OPC UA tests use it, and the load
+//! of OPC UA clients that `tests/opcua.rs` and `cargo bench --bench plc` (which takes this file
+//! by its path) measure the PLC beside.
+
+#![allow(dead_code)]
 
 use std::path::Path;
 use std::sync::Arc;
+use std::time::Duration;
 
 use async_opcua::client::{ClientBuilder, IdentityToken, Password, Session};
 use async_opcua::crypto::SecurityPolicy;
@@ -9,6 +14,9 @@ use async_opcua::types::{
     BrowsePath, MessageSecurityMode, NodeId, QualifiedName, ReadValueId, ReferenceTypeId, RelativePath, RelativePathElement, StatusCode,
     TimestampsToReturn, UserTokenPolicy, VariableId, Variant,
 };
+
+pub const MV: &str = "http://opcfoundation.org/UA/MachineVision";
+pub const DI: &str = "http://opcfoundation.org/UA/DI/";
 
 /// A session on the None endpoint, anonymous or as `user`.
 pub async fn session(url: &str, dir: &Path, user: Option<(&str, &str)>) -> Result<Arc<Session>, StatusCode> {
@@ -72,4 +80,90 @@ pub async fn browse_to(session: &Session, path: &[(u16, &str)]) -> NodeId {
     let targets = r[0].targets.clone().unwrap_or_default();
     assert!(!targets.is_empty(), "nothing at Objects/{path:?}: {:?}", r[0].status_code);
     targets[0].target_id.node_id.clone()
+}
+
+/// OPC UA clients on a thread of their own at the lowest priority (they are other machines):
+/// `subscribers` anonymous sessions subscribed to camera `camera`'s ResultReady events, each
+/// counting what it receives, and, while `churn` is set, one client connecting and
+/// disconnecting as fast as it can.
+pub struct OpcuaLoad {
+    pub received: Vec<Arc<std::sync::atomic::AtomicUsize>>,
+    pub subscribed: Arc<std::sync::atomic::AtomicUsize>,
+    pub churn: Arc<std::sync::atomic::AtomicBool>,
+    pub churned: Arc<std::sync::atomic::AtomicUsize>,
+    pub stop: Arc<std::sync::atomic::AtomicBool>,
+    pub thread: std::thread::JoinHandle<()>,
+}
+
+impl OpcuaLoad {
+    pub fn start(url: String, dir: std::path::PathBuf, camera: &str, subscribers: usize) -> Self {
+        let camera = camera.to_string();
+        use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering::Relaxed};
+        let received: Vec<_> = (0..subscribers).map(|_| Arc::new(AtomicUsize::new(0))).collect();
+        let (subscribed, churn, churned, stop) = (
+            Arc::new(AtomicUsize::new(0)),
+            Arc::new(AtomicBool::new(false)),
+            Arc::new(AtomicUsize::new(0)),
+            Arc::new(AtomicBool::new(false)),
+        );
+        let (r2, s2, c2, n2, st2) = (received.clone(), subscribed.clone(), churn.clone(), churned.clone(), stop.clone());
+        let thread = std::thread::spawn(move || {
+            // SAFETY: setpriority on this thread's own id.
+            unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 19) };
+            let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+            rt.block_on(async move {
+                use async_opcua::client::EventCallback;
+                use async_opcua::types::{ContentFilter, EventFilter, ExtensionObject, MonitoredItemCreateRequest, SimpleAttributeOperand};
+                let mut sessions = Vec::new();
+                for counter in r2 {
+                    let s = session(&url, &dir, None).await.expect("a subscriber's session");
+                    let (mv, di, own) = (namespace(&s, MV).await, namespace(&s, DI).await, namespace(&s, "urn:lfi-bridge:vision").await);
+                    let system = browse_to(&s, &[(di, "DeviceSet"), (own, camera.as_str())]).await;
+                    let sub = s
+                        .create_subscription(
+                            Duration::from_millis(50),
+                            100,
+                            20,
+                            1000,
+                            0,
+                            true,
+                            EventCallback::new(move |_, _| {
+                                counter.fetch_add(1, Relaxed);
+                            }),
+                        )
+                        .await
+                        .expect("subscription");
+                    let content = SimpleAttributeOperand {
+                        type_definition_id: NodeId::new(mv, 1024u32),
+                        browse_path: Some(vec![QualifiedName::new(mv, "ResultContent")]),
+                        attribute_id: async_opcua::types::AttributeId::Value as u32,
+                        index_range: async_opcua::types::NumericRange::None,
+                    };
+                    let filter = EventFilter { where_clause: ContentFilter { elements: None }, select_clauses: Some(vec![content]) };
+                    let mut item: MonitoredItemCreateRequest = system.into();
+                    item.item_to_monitor.attribute_id = async_opcua::types::AttributeId::EventNotifier as u32;
+                    item.requested_parameters.queue_size = 100;
+                    item.requested_parameters.filter = ExtensionObject::from_message(filter);
+                    let r = s.create_monitored_items(sub, TimestampsToReturn::Neither, vec![item]).await.expect("monitored item");
+                    assert!(r[0].result.status_code.is_good());
+                    sessions.push(s);
+                    s2.fetch_add(1, Relaxed);
+                }
+                while !st2.load(Relaxed) {
+                    if c2.load(Relaxed) {
+                        if let Ok(s) = session(&url, &dir, None).await {
+                            let _ = s.disconnect().await;
+                            n2.fetch_add(1, Relaxed);
+                        }
+                    } else {
+                        tokio::time::sleep(Duration::from_millis(5)).await;
+                    }
+                }
+                for s in sessions {
+                    let _ = s.disconnect().await;
+                }
+            });
+        });
+        Self { received, subscribed, churn, churned, stop, thread }
+    }
 }
