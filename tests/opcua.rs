@@ -22,15 +22,16 @@ const PASSWORD: &str = "line-3-secret";
 /// An appliance with the OPC UA server on a free port, its PKI and a user's password file in
 /// `dir`, and anonymous reading as configured.
 async fn appliance(dir: &Path, anonymous: bool) -> lfi_bridge::appliance::Running {
-    appliance_with(dir, anonymous, 9).await
+    appliance_with(dir, anonymous, 9, "").await
 }
 
-/// As [`appliance`], the simulated camera serving `scenes` scenes in turn.
-async fn appliance_with(dir: &Path, anonymous: bool, scenes: usize) -> lfi_bridge::appliance::Running {
+/// As [`appliance`], the simulated camera serving `scenes` scenes in turn, with `opcua` added
+/// to `[opcua]`.
+async fn appliance_with(dir: &Path, anonymous: bool, scenes: usize, opcua: &str) -> lfi_bridge::appliance::Running {
     std::fs::write(dir.join("scada.pw"), format!("{PASSWORD}\n")).unwrap();
     let text = format!(
         "[modbus]\nbind = \"127.0.0.1:0\"\n[http]\nbind = \"127.0.0.1:0\"\n[log]\nlevel = \"warn\"\n\
-         [opcua]\nenabled = true\nbind = \"127.0.0.1:0\"\nallow_anonymous_read = {anonymous}\npki_dir = \"pki\"\n\
+         [opcua]\nenabled = true\nbind = \"127.0.0.1:0\"\nallow_anonymous_read = {anonymous}\npki_dir = \"pki\"\n{opcua}\
          [[opcua.users]]\nname = \"scada\"\npassword_file = \"scada.pw\"\n\
          [[camera]]\nunit_id = 1\nname = \"line3\"\nkb_from_simulator = true\nmm_per_px = 0.5\n\
          [[camera.job]]\nid = 1\nname = \"any\"\n[[camera.job]]\nid = 2\nname = \"flanges\"\nexpected_type = 2\n\
@@ -452,7 +453,7 @@ async fn twenty_subscribers_and_two_hundred_reconnects_do_not_slow_the_plc() {
     let _alone = common::MACHINE.write().await;
     let dir = tempfile::tempdir().unwrap();
     // One scene over and over: every cycle does the same work.
-    let running = appliance_with(dir.path(), true, 1).await;
+    let running = appliance_with(dir.path(), true, 1, "").await;
     let url = running.opcua_url.clone().expect("OPC UA enabled");
     let mut ctx = plc(running.modbus_addr, 1).await;
     async fn sample(ctx: &mut tokio_modbus::client::Context, reads: &mut Vec<f64>, cycles: &mut Vec<f64>) {
@@ -704,6 +705,40 @@ async fn asyncua_starts_a_job_and_gets_the_parts_the_plc_reads() {
             (r.6, r.7, r.8)
         );
         assert_eq!(p["job_id"], job.as_str());
+    }
+    running.stop().await;
+}
+
+/// The session limit: with `max_sessions = 24`, the 25th session is refused (the metrics count
+/// it) and a session opens again once one closes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_session_limit_refuses_one_more_and_frees_with_a_close() {
+    let _shared = common::MACHINE.read().await;
+    let dir = tempfile::tempdir().unwrap();
+    let running = appliance_with(dir.path(), true, 9, "max_sessions = 24\n").await;
+    let url = running.opcua_url.clone().expect("OPC UA enabled");
+    let mut sessions = Vec::new();
+    for i in 0..24 {
+        sessions.push(session(&url, dir.path(), None).await.unwrap_or_else(|e| panic!("session {} of 24: {e}", i + 1)));
+    }
+    assert_eq!(session(&url, dir.path(), None).await.err(), Some(StatusCode::BadTooManySessions), "the 25th");
+    let web = running.http_addr.expect("http enabled");
+    let until = tokio::time::Instant::now() + Duration::from_secs(2);
+    loop {
+        let (_, _, body) = tokio::task::spawn_blocking(move || common::http::http(web, "GET", "/metrics", &[], "")).await.unwrap();
+        let text = String::from_utf8(body).unwrap();
+        let rejected = text.lines().find_map(|l| l.strip_prefix("lfi_opcua_rejected_requests_total ")).and_then(|v| v.parse::<u64>().ok());
+        if rejected.is_some_and(|n| n >= 1) {
+            break;
+        }
+        assert!(tokio::time::Instant::now() < until, "the refusal is not counted: {rejected:?}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let _ = sessions.pop().unwrap().disconnect().await;
+    let again = session(&url, dir.path(), None).await.expect("a session once one closed");
+    let _ = again.disconnect().await;
+    for s in sessions {
+        let _ = s.disconnect().await;
     }
     running.stop().await;
 }

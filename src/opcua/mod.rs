@@ -93,6 +93,11 @@ pub async fn attach(running: &mut Running, cfg: &OpcuaConfig, triggers: Vec<Trig
         pending: Mutex::new(HashMap::new()),
         kept: cameras.iter().map(|_| Mutex::new(results::Store::new(cfg.results_kept))).collect(),
         handles: AtomicU32::new(0),
+        limits: Limits {
+            sessions: cfg.max_sessions,
+            subscriptions: cfg.max_subscriptions_per_session,
+            items: cfg.max_monitored_items_per_subscription,
+        },
         mv: OnceLock::new(),
     });
     let handler: model::Handler = {
@@ -214,6 +219,7 @@ async fn follow_states(
     let cameras = &shell.cameras;
     let mut last = vec![None; cameras.len()];
     let mut types_failed = false;
+    let mut watch = LimitWatch::default();
     let mut tick = tokio::time::interval(STATE_PERIOD);
     loop {
         tokio::select! {
@@ -239,6 +245,14 @@ async fn follow_states(
             }
         }
         copy_diagnostics(handle, &shell.stats);
+        let now = (shell.stats.sessions.load(Relaxed), shell.stats.rejected_requests.load(Relaxed));
+        for (warn, line) in watch.look(now.0, now.1, &shell.limits, std::time::Instant::now()) {
+            if warn {
+                tracing::warn!("OPC UA: {line}");
+            } else {
+                tracing::info!("OPC UA: {line}");
+            }
+        }
         for (i, cam) in cameras.iter().enumerate() {
             let free_run = shell.triggers.get(i) == Some(&Trigger::FreeRun);
             let state = cam.handshake.lock().unwrap_or_else(|p| p.into_inner()).vision_state(free_run);
@@ -269,6 +283,8 @@ struct Shell {
     kept: Vec<Mutex<results::Store>>,
     /// The last ResultHandle given out (each query gets its own; nothing is held for it).
     handles: AtomicU32,
+    /// The configured limits, for the log lines that say a client hit one.
+    limits: Limits,
     /// The MachineVision namespace's index.
     mv: OnceLock<u16>,
 }
@@ -503,6 +519,67 @@ async fn report_results(
     }
 }
 
+/// The limits a client can hit (`[opcua]`).
+#[derive(Debug, Clone, Copy)]
+struct Limits {
+    sessions: usize,
+    subscriptions: usize,
+    items: usize,
+}
+
+/// Turns the server's counts into log lines when a client hits a limit (the OPC UA stack answers
+/// the client with a Bad status but logs nothing): the session limit exactly, as it is reached
+/// and freed; other refused requests (over a subscription or monitored-item limit, a wrong
+/// password, an unknown session) at most once per [`LimitWatch::QUIET`], counted.
+#[derive(Debug, Default)]
+struct LimitWatch {
+    full: bool,
+    rejected: u64,
+    unreported: u64,
+    last: Option<std::time::Instant>,
+}
+
+impl LimitWatch {
+    const QUIET: Duration = Duration::from_secs(10);
+
+    /// The lines to log (true: a warning) for `sessions` open and `rejected` requests refused
+    /// since start, seen at `now`.
+    fn look(&mut self, sessions: u64, rejected: u64, limits: &Limits, now: std::time::Instant) -> Vec<(bool, String)> {
+        let mut out = Vec::new();
+        let full = sessions as usize >= limits.sessions;
+        if full && !self.full {
+            out.push((
+                true,
+                format!(
+                    "all {} sessions in use (max_sessions): another client's session is refused (BadTooManySessions) until one closes",
+                    limits.sessions
+                ),
+            ));
+        } else if !full && self.full {
+            out.push((false, format!("{sessions} of {} sessions in use: new sessions are taken again", limits.sessions)));
+        }
+        self.full = full;
+        self.unreported += rejected.saturating_sub(self.rejected);
+        self.rejected = rejected;
+        if self.unreported > 0 && self.last.is_none_or(|t| now.duration_since(t) >= Self::QUIET) {
+            out.push((
+                true,
+                format!(
+                    "{} request(s) refused{}: a client over max_sessions ({}), max_subscriptions_per_session ({}) or max_monitored_items_per_subscription ({}), a wrong password, or a session the server no longer has (the client sees which)",
+                    self.unreported,
+                    if self.last.is_some() { " in the last 10 s" } else { "" },
+                    limits.sessions,
+                    limits.subscriptions,
+                    limits.items
+                ),
+            ));
+            self.unreported = 0;
+            self.last = Some(now);
+        }
+        out
+    }
+}
+
 /// The server's session and subscription counts (its diagnostics summary) into `stats`.
 fn copy_diagnostics(handle: &async_opcua::server::ServerHandle, stats: &Stats) {
     use async_opcua::types::VariableId as V;
@@ -519,5 +596,30 @@ fn copy_diagnostics(handle: &async_opcua::server::ServerHandle, stats: &Stats) {
         if let Some(n) = read(id) {
             to.store(n, Relaxed);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_client_at_a_limit_is_logged_once_and_counted() {
+        let limits = Limits { sessions: 24, subscriptions: 10, items: 1000 };
+        let t0 = std::time::Instant::now();
+        let at = |s: u64| t0 + Duration::from_secs(s);
+        let mut w = LimitWatch::default();
+        assert!(w.look(3, 0, &limits, at(0)).is_empty(), "nothing refused, room left");
+        let lines = w.look(24, 0, &limits, at(1));
+        assert_eq!(lines.len(), 1);
+        assert!(lines[0].0 && lines[0].1.contains("all 24 sessions in use (max_sessions)"), "{lines:?}");
+        assert!(w.look(24, 0, &limits, at(2)).is_empty(), "said once while it stays full");
+        let lines = w.look(24, 2, &limits, at(3));
+        assert!(lines[0].1.starts_with("2 request(s) refused:") && lines[0].1.contains("max_subscriptions_per_session (10)"), "{lines:?}");
+        assert!(w.look(24, 5, &limits, at(4)).is_empty(), "quiet for 10 s");
+        let lines = w.look(23, 6, &limits, at(13));
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        assert!(!lines[0].0 && lines[0].1.contains("23 of 24 sessions"), "{lines:?}");
+        assert!(lines[1].1.starts_with("4 request(s) refused in the last 10 s"), "the three held back and the new one: {lines:?}");
     }
 }
