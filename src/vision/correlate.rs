@@ -25,6 +25,33 @@ impl std::fmt::Debug for Spectrum {
     }
 }
 
+/// Harmonics a [`Key`] keeps: enough for a bound that tells most templates apart, cheap
+/// enough to compare with every template of a catalogue (64 multiply-adds each).
+pub const KEY_HARMONICS: usize = 64;
+
+/// A signal's rotation- and face-free key: the magnitudes of its first harmonics. A rotation
+/// shifts the signal (a phase per harmonic) and turning the part over mirrors it (conjugates the
+/// harmonics of a real signal): neither changes a magnitude.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Key(pub Vec<f64>);
+
+impl Key {
+    /// The key of `s`.
+    pub fn of(s: &Spectrum) -> Self {
+        Self(s.bins.iter().skip(1).take(KEY_HARMONICS).map(|c| c.norm()).collect())
+    }
+
+    /// A lower bound of [`Alignment::rms`] between the signals of `self` and `other`, whatever
+    /// the shift: by Parseval, `n * sum |a_s - b|^2 = sum_k |A_k e^(i k s) - B_k|^2 >=
+    /// sum_k (|A_k| - |B_k|)^2`, each harmonic `k < n/2` counted twice (`n - k` mirrors it), the
+    /// harmonics the key leaves out counted as 0. So a template whose bound exceeds a distance
+    /// cannot come nearer than it, and need not be correlated.
+    pub fn bound(&self, other: &Key, n: usize) -> f64 {
+        let sum: f64 = self.0.iter().zip(&other.0).map(|(a, b)| (a - b) * (a - b)).sum();
+        (2.0 * sum).sqrt() / n as f64
+    }
+}
+
 /// Result of correlating a part's signal with one template's.
 #[derive(Debug, Clone, Copy)]
 pub struct Alignment {
@@ -118,6 +145,30 @@ mod tests {
             let err = crate::vision::geometry::angle_diff_deg(got, deg);
             assert!(err.abs() < 0.05, "rotation {deg}: got {got} (error {err})");
             assert!(a.rms < 1e-3);
+        }
+    }
+
+    #[test]
+    fn the_key_bounds_the_distance_from_below_whatever_the_rotation_or_mirror() {
+        let n = 1024;
+        let c = Correlator::new(n);
+        let other = |k: usize| {
+            let a = k as f64 / n as f64 * TAU;
+            4.0 + 0.25 * (2.0 * a).sin() + 0.3 * (3.0 * a + 0.2).cos() + 0.05 * (11.0 * a).sin()
+        };
+        let t = c.spectrum(&smooth_signal(n, 0.0));
+        let u = c.spectrum(&(0..n).map(other).collect::<Vec<_>>());
+        let (kt, ku) = (Key::of(&t), Key::of(&u));
+        for deg in [0.0, 33.3, 181.0] {
+            let shift = deg / 360.0 * n as f64;
+            let s = smooth_signal(n, shift);
+            let mirrored: Vec<f64> = (0..n).map(|k| s[(n - k) % n]).collect();
+            for part in [c.spectrum(&s), c.spectrum(&mirrored)] {
+                let kp = Key::of(&part);
+                assert!(kp.bound(&kt, n) < 1e-9, "the same outline turned or mirrored has the same key");
+                let (bound, rms) = (kp.bound(&ku, n), c.align(&part, &u).rms);
+                assert!(bound > 0.05 && bound <= rms + 1e-9, "bound {bound} against the distance {rms}");
+            }
         }
     }
 

@@ -961,10 +961,18 @@ impl Estimator {
         let corr = &self.lib.correlator;
         let signal = signal::log_radius_signal(outline, centroid, corr.bins());
         let spec = corr.spectrum(&signal);
-        let mut aligned: Vec<(usize, correlate::Alignment)> =
-            self.lib.entries.iter().enumerate().map(|(i, e)| (i, corr.align(&spec, &e.spectrum))).collect();
-        aligned.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms));
+        // The candidates below are the nearest `p.candidates`, and the why names the two after
+        // the best: only those need correlating.
+        let need = p.candidates.max(3);
+        let aligned = self.lib.nearest(&spec, need);
         tm.correlate += ms(t);
+        // In tests, every part checks the shortlist against correlating every template.
+        #[cfg(debug_assertions)]
+        {
+            let all: Vec<usize> = self.lib.align_all(&spec).iter().take(need).map(|a| a.0).collect();
+            let short: Vec<usize> = aligned.iter().map(|a| a.0).collect();
+            assert_eq!(short, all, "the shortlist cut a template nearer than its last");
+        }
 
         let t = Instant::now();
         // The closest template by correlation is registered on every point; runners-up whose

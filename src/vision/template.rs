@@ -3,7 +3,7 @@
 
 use super::boundary;
 use super::clump::ShapeModel;
-use super::correlate::{Correlator, Spectrum};
+use super::correlate::{Alignment, Correlator, Key, Spectrum};
 use super::detect::{self, DetectParams};
 use super::frame::{FrameError, GrayView};
 use super::geometry::{Pt, area_centroid, bounds};
@@ -197,6 +197,8 @@ pub struct Compiled {
     pub template: Template,
     /// Its r(phi) signal in the frequency domain.
     pub spectrum: Spectrum,
+    /// Its spectrum's key: the shortlist's bound on the correlation distance.
+    pub key: Key,
     /// Its outline's nearest-segment index.
     pub index: OutlineIndex,
     /// Diagonal of its outline's bounding box, px.
@@ -223,9 +225,11 @@ impl Library {
             .map(|t| {
                 let signal = log_radius_signal(&t.outline, t.centroid, bins);
                 let (lo, hi) = bounds(&t.outline);
+                let spectrum = correlator.spectrum(&signal);
                 Compiled {
                     template: t.clone(),
-                    spectrum: correlator.spectrum(&signal),
+                    key: Key::of(&spectrum),
+                    spectrum,
                     index: OutlineIndex::new(&t.outline),
                     diag: (hi - lo).norm(),
                     shape: ShapeModel::new(&t.outline, t.centroid),
@@ -234,7 +238,49 @@ impl Library {
             .collect();
         Self { entries, correlator }
     }
+
+    /// Every template by correlation distance to `part` (best first): the slow way, for
+    /// [`Library::nearest`]'s tests and benches.
+    pub fn align_all(&self, part: &Spectrum) -> Vec<(usize, Alignment)> {
+        let mut aligned: Vec<(usize, Alignment)> =
+            self.entries.iter().enumerate().map(|(i, e)| (i, self.correlator.align(part, &e.spectrum))).collect();
+        aligned.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms).then(a.0.cmp(&b.0)));
+        aligned
+    }
+
+    /// The `need` templates nearest to `part` by correlation distance (best first), exactly as
+    /// the first `need` of [`Library::align_all`], correlating only the templates whose key's
+    /// bound ([`Key::bound`]) could still place them there. The bound holds for whole-bin shifts;
+    /// the sub-bin refinement of [`Correlator::align`] may land below it by a little, so a
+    /// template is passed over only when its bound exceeds the `need`-th distance by
+    /// [`SHORTLIST_SLACK`] (relative) plus 0.001.
+    pub fn nearest(&self, part: &Spectrum, need: usize) -> Vec<(usize, Alignment)> {
+        let n = self.correlator.bins();
+        let key = Key::of(part);
+        let mut order: Vec<(usize, f64)> = self.entries.iter().enumerate().map(|(i, e)| (i, key.bound(&e.key, n))).collect();
+        order.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let mut aligned: Vec<(usize, Alignment)> = Vec::with_capacity(need + 4);
+        for (i, bound) in order {
+            if aligned.len() >= need {
+                aligned.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms));
+                let kth = aligned[need - 1].1.rms;
+                if bound > kth * (1.0 + SHORTLIST_SLACK) + 0.001 {
+                    break;
+                }
+            }
+            aligned.push((i, self.correlator.align(part, &self.entries[i].spectrum)));
+        }
+        aligned.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms).then(a.0.cmp(&b.0)));
+        aligned.truncate(need.max(1));
+        aligned
+    }
 }
+
+/// How far (relative) the sub-bin refinement of a correlation may land below its whole-bin
+/// bound: a parabola through three samples of a smooth distance moves the minimum by a fraction
+/// of the samples' spread. `tests/shortlist.rs` checks the shortlist against every template on
+/// the simulator's catalogue at every noise level.
+pub const SHORTLIST_SLACK: f64 = 0.05;
 
 #[cfg(test)]
 mod tests {
