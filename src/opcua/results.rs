@@ -6,7 +6,9 @@ use std::sync::Arc;
 
 use async_opcua::nodes::{BaseEventType, Event};
 use async_opcua::types::event_field::EventField;
-use async_opcua::types::{AttributeId, ByteString, DateTime, NodeId, NumericRange, ObjectTypeId, QualifiedName, Variant};
+use async_opcua::types::{
+    AttributeId, ByteString, DateTime, NodeId, NumericRange, ObjectTypeId, QualifiedName, Variant, VariantScalarTypeId,
+};
 
 use super::types::{self, LateTypes};
 use crate::appliance::camera::Acquisition;
@@ -113,42 +115,60 @@ impl Kept {
         }
     }
 
-    /// ResultContent as an array of Strings.
-    fn content_variant(&self) -> Variant {
-        let content: Vec<Variant> = self.content.iter().map(|c| Variant::from(c.as_str())).collect();
-        async_opcua::types::Array::new(async_opcua::types::VariantScalarTypeId::String, content)
-            .map(|a| Variant::Array(Box::new(a)))
-            .unwrap_or(Variant::Empty)
+    /// The fields a result has, in the order of `ResultReadyEventType`'s own.
+    const FIELDS: [&'static str; 11] = [
+        "ResultId",
+        "JobId",
+        "MeasId",
+        "PartId",
+        "InternalRecipeId",
+        "InternalConfigurationId",
+        "ResultState",
+        "IsPartial",
+        "IsSimulated",
+        "CreationTime",
+        "ResultContent",
+    ];
+
+    /// The value of field `name` (one of [`Kept::FIELDS`]; any other is null), as the event
+    /// carries it: one mapping for ResultReady and `ResultDataType`.
+    fn field(&self, types: &LateTypes, mv: u16, name: &str) -> Result<Variant, String> {
+        let id = |t: u32, v: &str| types.id(mv, t, v);
+        Ok(match name {
+            "ResultId" => id(types::RESULT_ID, &self.id)?,
+            "JobId" => id(types::JOB_ID, &self.id)?,
+            "MeasId" => id(types::MEAS_ID, &self.ids.meas_id)?,
+            "PartId" => id(types::PART_ID, &self.ids.part_id)?,
+            "InternalRecipeId" => id(types::RECIPE_ID_INTERNAL, &self.recipe)?,
+            "InternalConfigurationId" => id(types::CONFIGURATION_ID, CONFIGURATION)?,
+            "IsPartial" | "IsSimulated" => Variant::from(false),
+            "ResultState" => Variant::from(self.state),
+            "CreationTime" => Variant::from(self.at),
+            "ResultContent" => content_array(self.content.iter().map(|c| Variant::from(c.as_str())), VariantScalarTypeId::String)?,
+            _ => Variant::Empty,
+        })
     }
 
     /// The result as MachineVision's `ResultDataType` (what GetResultById and
     /// GetResultListFiltered return); the optional fields the appliance has no value for are
     /// left out.
     pub fn data(&self, types: &LateTypes, mv: u16) -> Result<Variant, String> {
-        let id = |t: u32, v: &str| types.id(mv, t, v);
-        types.structure(mv, types::RESULT, |field| {
-            Ok(match field {
-                "ResultId" => id(types::RESULT_ID, &self.id)?,
-                "JobId" => id(types::JOB_ID, &self.id)?,
-                "MeasId" => id(types::MEAS_ID, &self.ids.meas_id)?,
-                "PartId" => id(types::PART_ID, &self.ids.part_id)?,
-                "InternalRecipeId" => id(types::RECIPE_ID_INTERNAL, &self.recipe)?,
-                "InternalConfigurationId" => id(types::CONFIGURATION_ID, CONFIGURATION)?,
-                "IsPartial" | "IsSimulated" => Variant::from(false),
-                "ResultState" => Variant::from(self.state),
-                "CreationTime" => Variant::from(self.at),
-                // BaseDataType elements: each String inside a Variant.
-                "ResultContent" => {
-                    let content: Vec<Variant> =
-                        self.content.iter().map(|c| Variant::Variant(Box::new(Variant::from(c.as_str())))).collect();
-                    async_opcua::types::Array::new(async_opcua::types::VariantScalarTypeId::Variant, content)
-                        .map(|a| Variant::Array(Box::new(a)))
-                        .map_err(|e| format!("ResultContent: {e}"))?
-                }
-                _ => Variant::Empty,
-            })
+        types.structure(mv, types::RESULT, |name| match name {
+            // Declared BaseDataType[]: each String inside a Variant.
+            "ResultContent" => content_array(
+                self.content.iter().map(|c| Variant::Variant(Box::new(Variant::from(c.as_str())))),
+                VariantScalarTypeId::Variant,
+            ),
+            _ => self.field(types, mv, name),
         })
     }
+}
+
+/// ResultContent: an array of `values`, each of type `of`.
+fn content_array(values: impl Iterator<Item = Variant>, of: VariantScalarTypeId) -> Result<Variant, String> {
+    async_opcua::types::Array::new(of, values.collect::<Vec<_>>())
+        .map(|a| Variant::Array(Box::new(a)))
+        .map_err(|e| format!("ResultContent: {e}"))
 }
 
 /// What GetResultListFiltered asks for: results matching every filter that is set (a state
@@ -244,31 +264,22 @@ impl ResultReady {
     /// The event of result `k` on camera `camera` (its object `source`), MachineVision
     /// namespace `mv`.
     pub fn new(types: &Arc<LateTypes>, mv: u16, source: &NodeId, camera: &str, k: &Kept) -> Self {
-        let s = |t: u32, id: &str| -> Variant {
-            types.id(mv, t, id).unwrap_or_else(|e| {
-                tracing::warn!("OPC UA ResultReady: {e}");
-                Variant::Empty
-            })
-        };
         let mut event_id = k.id.as_bytes().to_vec();
         event_id.extend(k.at.checked_ticks().to_be_bytes());
         let base = BaseEventType::new(NodeId::new(mv, RESULT_READY), ByteString::from(event_id), k.message.clone(), k.at)
             .set_source_node(source.clone())
             .set_source_name(camera.into())
             .set_severity(if k.state == STATE_NO_FRAME { 500 } else { 100 });
-        let fields = vec![
-            ("ResultId", s(types::RESULT_ID, &k.id)),
-            ("JobId", s(types::JOB_ID, &k.id)),
-            ("MeasId", s(types::MEAS_ID, &k.ids.meas_id)),
-            ("PartId", s(types::PART_ID, &k.ids.part_id)),
-            ("InternalRecipeId", s(types::RECIPE_ID_INTERNAL, &k.recipe)),
-            ("InternalConfigurationId", s(types::CONFIGURATION_ID, CONFIGURATION)),
-            ("ResultState", Variant::from(k.state)),
-            ("IsPartial", Variant::from(false)),
-            ("IsSimulated", Variant::from(false)),
-            ("CreationTime", Variant::from(k.at)),
-            ("ResultContent", k.content_variant()),
-        ];
+        let fields = Kept::FIELDS
+            .iter()
+            .map(|&name| {
+                let v = k.field(types, mv, name).unwrap_or_else(|e| {
+                    tracing::warn!("OPC UA ResultReady: {e}");
+                    Variant::Empty
+                });
+                (name, v)
+            })
+            .collect();
         Self { base, mv, fields }
     }
 
