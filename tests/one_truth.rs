@@ -190,11 +190,7 @@ async fn the_plc_the_robot_the_page_the_counters_and_the_log_agree_on_every_part
 /// anonymous client on the None endpoint, on a thread and runtime of its own (a plant's client
 /// is another machine), until `stop` is set.
 fn subscribe_results(url: String, dir: std::path::PathBuf, stop: Arc<std::sync::atomic::AtomicBool>) -> Arc<Mutex<Vec<(Row, u16)>>> {
-    use async_opcua::client::EventCallback;
-    use async_opcua::types::{
-        AttributeId, ContentFilter, EventFilter, ExtensionObject, MonitoredItemCreateRequest, NodeId, NumericRange, QualifiedName,
-        SimpleAttributeOperand, TimestampsToReturn, Variant,
-    };
+    use async_opcua::types::{TimestampsToReturn, Variant};
     let rows = Arc::new(Mutex::new(Vec::new()));
     let sink = rows.clone();
     let ready = Arc::new(std::sync::Barrier::new(2));
@@ -203,44 +199,23 @@ fn subscribe_results(url: String, dir: std::path::PathBuf, stop: Arc<std::sync::
         let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
         rt.block_on(async move {
             let session = common::opcua::session(&url, &dir, None).await.expect("an OPC UA session");
-            let mv = common::opcua::namespace(&session, "http://opcfoundation.org/UA/MachineVision").await;
-            let di = common::opcua::namespace(&session, "http://opcfoundation.org/UA/DI/").await;
+            let mv = common::opcua::namespace(&session, common::opcua::MV).await;
+            let di = common::opcua::namespace(&session, common::opcua::DI).await;
             let own = common::opcua::namespace(&session, "urn:lfi-bridge:vision").await;
             let system = common::opcua::browse_to(&session, &[(di, "DeviceSet"), (own, "camera1")]).await;
-            let sub = session
-                .create_subscription(
-                    Duration::from_millis(50),
-                    600,
-                    20,
-                    1000,
-                    0,
-                    true,
-                    EventCallback::new(move |fields, _| {
-                        let Some(Variant::Array(content)) = fields.and_then(|f| f.into_iter().next()) else { return };
-                        for v in content.values.iter() {
-                            let Variant::String(s) = v else { continue };
-                            let p: serde_json::Value = serde_json::from_str(s.as_ref()).expect("JSON");
-                            let tenth = |k: &str| (p[k].as_f64().unwrap() * 10.0).round() as i32;
-                            let n = |k: &str| p[k].as_u64().unwrap() as u16;
-                            let row =
-                                (n("acq_id"), n("part_index"), p["decision"] == "accept", n("reason_code"), tenth("x_mm"), tenth("y_mm"));
-                            sink.lock().unwrap().push((row, n("type_id")));
-                        }
-                    }),
-                )
-                .await
-                .expect("a subscription");
-            let content = SimpleAttributeOperand {
-                type_definition_id: NodeId::new(mv, 1024u32),
-                browse_path: Some(vec![QualifiedName::new(mv, "ResultContent")]),
-                attribute_id: AttributeId::Value as u32,
-                index_range: NumericRange::None,
-            };
-            let filter = EventFilter { where_clause: ContentFilter { elements: None }, select_clauses: Some(vec![content]) };
-            let mut item: MonitoredItemCreateRequest = system.into();
-            item.item_to_monitor.attribute_id = AttributeId::EventNotifier as u32;
-            item.requested_parameters.queue_size = 100;
-            item.requested_parameters.filter = ExtensionObject::from_message(filter);
+            let sub = common::opcua::event_subscription(&session, 600, move |fields| {
+                let Some(Variant::Array(content)) = fields.and_then(|f| f.into_iter().next()) else { return };
+                for v in content.values.iter() {
+                    let Variant::String(s) = v else { continue };
+                    let p: serde_json::Value = serde_json::from_str(s.as_ref()).expect("JSON");
+                    let tenth = |k: &str| (p[k].as_f64().unwrap() * 10.0).round() as i32;
+                    let n = |k: &str| p[k].as_u64().unwrap() as u16;
+                    let row = (n("acq_id"), n("part_index"), p["decision"] == "accept", n("reason_code"), tenth("x_mm"), tenth("y_mm"));
+                    sink.lock().unwrap().push((row, n("type_id")));
+                }
+            })
+            .await;
+            let item = common::opcua::result_ready_item(system, mv, &["ResultContent"], 100);
             let r = session.create_monitored_items(sub, TimestampsToReturn::Neither, vec![item]).await.expect("a monitored item");
             assert!(r[0].result.status_code.is_good());
             ready2.wait();

@@ -9,9 +9,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use async_opcua::client::Session;
-use async_opcua::types::{
-    CallMethodRequest, LocalizedText, NodeId, QualifiedName, ReferenceTypeId, StatusCode, TimestampsToReturn, Variant,
-};
+use async_opcua::types::{CallMethodRequest, LocalizedText, NodeId, ReferenceTypeId, StatusCode, TimestampsToReturn, Variant};
 use common::appliance::*;
 use common::opcua::*;
 use lfi_bridge::config::Config;
@@ -194,9 +192,7 @@ async fn plc_results(ctx: &mut tokio_modbus::client::Context) -> Vec<(u16, u16, 
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn start_single_job_raises_result_ready_with_the_parts_the_plc_reads() {
-    use async_opcua::client::EventCallback;
     use async_opcua::types::custom::DynamicStructure;
-    use async_opcua::types::{ContentFilter, EventFilter, ExtensionObject, MonitoredItemCreateRequest, SimpleAttributeOperand};
     let _shared = common::MACHINE.read().await;
     let dir = tempfile::tempdir().unwrap();
     let running = appliance(dir.path(), true).await;
@@ -225,38 +221,12 @@ async fn start_single_job_raises_result_ready_with_the_parts_the_plc_reads() {
 
     // Every ResultReady of the camera's object: its JobId, MeasId and content.
     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Vec<Variant>>();
-    let sub = user
-        .create_subscription(
-            Duration::from_millis(50),
-            100,
-            20,
-            1000,
-            0,
-            true,
-            EventCallback::new(move |fields, _| {
-                let _ = tx.send(fields.unwrap_or_default());
-            }),
-        )
-        .await
-        .expect("subscription");
-    let field = |name: &str| SimpleAttributeOperand {
-        type_definition_id: NodeId::new(mv, 1024u32),
-        browse_path: Some(vec![QualifiedName::new(mv, name)]),
-        attribute_id: async_opcua::types::AttributeId::Value as u32,
-        index_range: async_opcua::types::NumericRange::None,
-    };
-    let filter = EventFilter {
-        where_clause: ContentFilter { elements: None },
-        select_clauses: Some(vec![field("JobId"), field("MeasId"), field("ResultContent")]),
-    };
+    let sub = event_subscription(&user, 100, move |fields| {
+        let _ = tx.send(fields.unwrap_or_default());
+    })
+    .await;
     // The same events on the camera's object and on the Server object: one of each per job.
-    let item = |node: NodeId| {
-        let mut item: MonitoredItemCreateRequest = node.into();
-        item.item_to_monitor.attribute_id = async_opcua::types::AttributeId::EventNotifier as u32;
-        item.requested_parameters.queue_size = 10;
-        item.requested_parameters.filter = ExtensionObject::from_message(filter.clone());
-        item
-    };
+    let item = |node: NodeId| result_ready_item(node, mv, &["JobId", "MeasId", "ResultContent"], 10);
     let server: NodeId = async_opcua::types::ObjectId::Server.into();
     let r = user
         .create_monitored_items(sub, TimestampsToReturn::Neither, vec![item(system.clone()), item(server)])

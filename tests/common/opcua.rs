@@ -11,8 +11,8 @@ use std::time::Duration;
 use async_opcua::client::{ClientBuilder, IdentityToken, Password, Session};
 use async_opcua::crypto::SecurityPolicy;
 use async_opcua::types::{
-    BrowsePath, MessageSecurityMode, NodeId, QualifiedName, ReadValueId, ReferenceTypeId, RelativePath, RelativePathElement, StatusCode,
-    TimestampsToReturn, UserTokenPolicy, VariableId, Variant,
+    BrowsePath, MessageSecurityMode, MonitoredItemCreateRequest, NodeId, QualifiedName, ReadValueId, ReferenceTypeId, RelativePath,
+    RelativePathElement, StatusCode, TimestampsToReturn, UserTokenPolicy, VariableId, Variant,
 };
 
 pub const MV: &str = "http://opcfoundation.org/UA/MachineVision";
@@ -82,6 +82,39 @@ pub async fn browse_to(session: &Session, path: &[(u16, &str)]) -> NodeId {
     targets[0].target_id.node_id.clone()
 }
 
+/// A subscription publishing every 50 ms (keep-alive 20, a lifetime of `lifetime` publishing
+/// intervals) that hands each event's selected fields to `on_event`.
+pub async fn event_subscription(
+    session: &Session,
+    lifetime: u32,
+    mut on_event: impl FnMut(Option<Vec<Variant>>) + Send + Sync + 'static,
+) -> u32 {
+    let callback = async_opcua::client::EventCallback::new(move |fields, _| on_event(fields));
+    session.create_subscription(Duration::from_millis(50), lifetime, 20, 1000, 0, true, callback).await.expect("a subscription")
+}
+
+/// A monitored item for the ResultReady events of `node` (MachineVision namespace `mv`),
+/// selecting `fields` (ResultReadyEventType's browse names) and keeping up to `queue` events
+/// between publishes.
+pub fn result_ready_item(node: NodeId, mv: u16, fields: &[&str], queue: u32) -> MonitoredItemCreateRequest {
+    use async_opcua::types::{AttributeId, ContentFilter, EventFilter, ExtensionObject, NumericRange, SimpleAttributeOperand};
+    let select = fields
+        .iter()
+        .map(|name| SimpleAttributeOperand {
+            type_definition_id: NodeId::new(mv, 1024u32),
+            browse_path: Some(vec![QualifiedName::new(mv, *name)]),
+            attribute_id: AttributeId::Value as u32,
+            index_range: NumericRange::None,
+        })
+        .collect();
+    let filter = EventFilter { where_clause: ContentFilter { elements: None }, select_clauses: Some(select) };
+    let mut item: MonitoredItemCreateRequest = node.into();
+    item.item_to_monitor.attribute_id = AttributeId::EventNotifier as u32;
+    item.requested_parameters.queue_size = queue;
+    item.requested_parameters.filter = ExtensionObject::from_message(filter);
+    item
+}
+
 /// OPC UA clients on a thread of their own at the lowest priority (they are other machines):
 /// `subscribers` anonymous sessions subscribed to camera `camera`'s ResultReady events, each
 /// counting what it receives, and, while `churn` is set, one client connecting and
@@ -112,38 +145,16 @@ impl OpcuaLoad {
             unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 19) };
             let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
             rt.block_on(async move {
-                use async_opcua::client::EventCallback;
-                use async_opcua::types::{ContentFilter, EventFilter, ExtensionObject, MonitoredItemCreateRequest, SimpleAttributeOperand};
                 let mut sessions = Vec::new();
                 for counter in r2 {
                     let s = session(&url, &dir, None).await.expect("a subscriber's session");
                     let (mv, di, own) = (namespace(&s, MV).await, namespace(&s, DI).await, namespace(&s, "urn:lfi-bridge:vision").await);
                     let system = browse_to(&s, &[(di, "DeviceSet"), (own, camera.as_str())]).await;
-                    let sub = s
-                        .create_subscription(
-                            Duration::from_millis(50),
-                            100,
-                            20,
-                            1000,
-                            0,
-                            true,
-                            EventCallback::new(move |_, _| {
-                                counter.fetch_add(1, Relaxed);
-                            }),
-                        )
-                        .await
-                        .expect("subscription");
-                    let content = SimpleAttributeOperand {
-                        type_definition_id: NodeId::new(mv, 1024u32),
-                        browse_path: Some(vec![QualifiedName::new(mv, "ResultContent")]),
-                        attribute_id: async_opcua::types::AttributeId::Value as u32,
-                        index_range: async_opcua::types::NumericRange::None,
-                    };
-                    let filter = EventFilter { where_clause: ContentFilter { elements: None }, select_clauses: Some(vec![content]) };
-                    let mut item: MonitoredItemCreateRequest = system.into();
-                    item.item_to_monitor.attribute_id = async_opcua::types::AttributeId::EventNotifier as u32;
-                    item.requested_parameters.queue_size = 100;
-                    item.requested_parameters.filter = ExtensionObject::from_message(filter);
+                    let sub = event_subscription(&s, 100, move |_| {
+                        counter.fetch_add(1, Relaxed);
+                    })
+                    .await;
+                    let item = result_ready_item(system, mv, &["ResultContent"], 100);
                     let r = s.create_monitored_items(sub, TimestampsToReturn::Neither, vec![item]).await.expect("monitored item");
                     assert!(r[0].result.status_code.is_good());
                     sessions.push(s);
