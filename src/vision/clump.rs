@@ -66,16 +66,6 @@ const TURN_TOLERANCE: i32 = 30;
 const VERIFY_SPACING: f64 = 4.0;
 /// Poses per template kept from the vote.
 const PEAKS_PER_TEMPLATE: usize = 3;
-/// Libraries of more templates than this shortlist each region's voters by a glance.
-const GLANCE_FROM: usize = 12;
-/// Voting points of a template's glance: every this many of its voting points.
-const GLANCE_STRIDE: usize = 4;
-/// Region outline points of a glance: every this many.
-const GLANCE_SCENE_STRIDE: usize = 3;
-/// A template stays on a region's shortlist when its glance scores this fraction of the best's.
-const GLANCE_KEEP: f64 = 0.5;
-/// Templates on a region's shortlist at the least.
-const GLANCE_LEAST: usize = 8;
 /// Hypotheses refined and verified per region, best votes first.
 const MAX_HYPOTHESES: usize = 10;
 
@@ -85,9 +75,6 @@ pub struct ShapeModel {
     /// Voting points: offset from the point to the centroid, the outward normal's angle in
     /// [`FINE`] steps, and the outline's turn there; sorted by turn.
     vote: Vec<(Pt, usize, i32)>,
-    /// Every [`GLANCE_STRIDE`]th voting point along the outline, sorted by turn: the sparse
-    /// vote that shortlists a large library's templates for a region.
-    glance: Vec<(Pt, usize, i32)>,
     /// Verification points on the outline and their outward unit normals (template pixels).
     verify: Vec<(Pt, Pt)>,
     /// Largest distance of the outline from the centroid, template pixels.
@@ -99,9 +86,7 @@ impl ShapeModel {
     pub fn new(outline: &[Pt], centroid: Pt) -> Self {
         let mut vote: Vec<(Pt, usize, i32)> =
             oriented_points(outline).into_iter().step_by(MODEL_VOTE_STRIDE).map(|(p, a, t)| (centroid - p, a, t)).collect();
-        let mut glance: Vec<(Pt, usize, i32)> = vote.iter().copied().step_by(GLANCE_STRIDE).collect();
         vote.sort_by_key(|v| v.2);
-        glance.sort_by_key(|v| v.2);
         let fp = resample_closed(outline, VERIFY_SPACING);
         let fs = smooth_closed(&fp, 2);
         let fnm = outward_normals(&fs, 2);
@@ -113,7 +98,7 @@ impl ShapeModel {
         let in_gap = |p: Pt, n: Pt| (1..=(NARROW_GAP / 2.0) as usize).any(|k| contains(&coarse_poly, p + n.scale(2.0 * k as f64)));
         let verify = fp.iter().copied().zip(fnm).filter(|&(p, n)| !in_gap(p, n)).collect();
         let radius = outline.iter().map(|p| (*p - centroid).norm()).fold(0.0, f64::max);
-        Self { vote, glance, verify, radius }
+        Self { vote, verify, radius }
     }
 }
 
@@ -177,15 +162,11 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     let (lo, hi) = bounds(region.outline);
     let mut acc = Accumulator::new(lo, hi);
     let mut vote_ms = 0.0;
-    let ext = OutlineIndex::of_frame(region.outline);
-    let edge = EdgeTest::new(region.coarse, region.noise, region.contrast);
-    let glimpse = |ei: usize, pose: &Similarity| support(&lib.entries[ei].shape, pose, &ext, &edge, 2.0 * tolerance(ei), 8);
     let mut hypotheses = |scene: &[(Pt, usize, i32)], scale: f64, vote_ms: &mut f64| {
         let voting = std::time::Instant::now();
         let mut hyps: Vec<(usize, Similarity, u32)> = Vec::new();
-        for ei in shortlist(lib, &mut acc, scene, scale, &glimpse) {
-            let e = &lib.entries[ei];
-            for (pose, votes) in vote(&mut acc, &e.shape.vote, e.template.centroid, scene, scale) {
+        for (ei, e) in lib.entries.iter().enumerate() {
+            for (pose, votes) in vote(&mut acc, &e.shape, e.template.centroid, scene, scale) {
                 hyps.push((ei, pose, votes));
             }
         }
@@ -200,6 +181,8 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         hyps
     };
     let hyps = hypotheses(&scene, 1.0, &mut vote_ms);
+    let ext = OutlineIndex::of_frame(region.outline);
+    let edge = EdgeTest::new(region.coarse, region.noise, region.contrast);
     let mut found: Vec<Found> = Vec::new();
     let look = |found: &[Found], ei: usize, init: Similarity| -> Option<Found> {
         let e = &lib.entries[ei];
@@ -427,46 +410,6 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     Explained { parts, leftover, vote_ms }
 }
 
-/// The templates that vote on a region's outline (or on what is left of it): every one in a
-/// small library; in a larger one, those whose glance scores within [`GLANCE_KEEP`] of the best
-/// glance, and never fewer than [`GLANCE_LEAST`]. A glance is a vote of a quarter of the
-/// template's voting points from a third of the region's (a twelfth of the pairs), scored by
-/// how much of the template's outline the region explains at the glance's peaks (the look's
-/// first, coarsest support test). Not the glance's votes: as a fraction of the points voting,
-/// small templates' chance peaks outvote a true part's (the bracket ranked 16th-40th of 200);
-/// by support the parts lying in the 40 touching and overlapping scenes of the simulator's seed
-/// 11 ranked at worst 10th of 200 templates, with 8 to 55 kept. Ascending template order, so
-/// that equal votes rank as with every template.
-fn shortlist(
-    lib: &Library,
-    acc: &mut Accumulator,
-    scene: &[(Pt, usize, i32)],
-    scale: f64,
-    glimpse: &dyn Fn(usize, &Similarity) -> f64,
-) -> Vec<usize> {
-    let n = lib.entries.len();
-    if n <= GLANCE_FROM {
-        return (0..n).collect();
-    }
-    let sparse: Vec<(Pt, usize, i32)> = scene.iter().copied().step_by(GLANCE_SCENE_STRIDE).collect();
-    let mut scores: Vec<(f64, usize)> = lib
-        .entries
-        .iter()
-        .enumerate()
-        .map(|(ei, e)| {
-            let best =
-                vote(acc, &e.shape.glance, e.template.centroid, &sparse, scale).iter().map(|p| glimpse(ei, &p.0)).fold(0.0, f64::max);
-            (best, ei)
-        })
-        .collect();
-    scores.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-    let top = scores.first().map_or(0.0, |s| s.0);
-    let mut keep: Vec<usize> =
-        scores.iter().enumerate().filter(|(k, s)| *k < GLANCE_LEAST || s.0 >= GLANCE_KEEP * top).map(|(_, s)| s.1).collect();
-    keep.sort_unstable();
-    keep
-}
-
 /// A direction's display angle in [`FINE`] steps.
 fn fine_angle(n: Pt) -> usize {
     ((n.display_angle() / std::f64::consts::TAU * FINE as f64).round() as i64).rem_euclid(FINE as i64) as usize
@@ -521,7 +464,7 @@ impl Accumulator {
 
 /// Generalised Hough vote of one template over the region: its best few poses (scale 1) and
 /// their votes (3 x 3 x 3 cells around the peak).
-fn vote(acc: &mut Accumulator, model: &[(Pt, usize, i32)], centroid: Pt, scene: &[(Pt, usize, i32)], scale: f64) -> Vec<(Similarity, u32)> {
+fn vote(acc: &mut Accumulator, model: &ShapeModel, centroid: Pt, scene: &[(Pt, usize, i32)], scale: f64) -> Vec<(Similarity, u32)> {
     let (lo, nx, ny) = (acc.lo, acc.nx, acc.ny);
     let plane = nx * ny;
     let fine_step = std::f64::consts::TAU / FINE as f64;
@@ -535,16 +478,16 @@ fn vote(acc: &mut Accumulator, model: &[(Pt, usize, i32)], centroid: Pt, scene: 
         .collect();
     let per_bin = FINE / ANGLE_BINS;
     // Candidate cells: the raw count is at least a twentieth of the model's points.
-    let floor = (model.len() / 20).clamp(3, u16::MAX as usize) as u16;
+    let floor = (model.vote.len() / 20).clamp(3, u16::MAX as usize) as u16;
     // Each bin's votes, and the sum of their fine angles relative to the bin's start, so that a
     // peak's angle is the mean of its votes rather than the bin's centre.
     for &(p, beta, turn) in scene {
         // Only points where the outlines bend alike can correspond: a fraction of the pairs.
-        let from = model.partition_point(|v| v.2 < turn - TURN_TOLERANCE);
-        let to = model.partition_point(|v| v.2 <= turn + TURN_TOLERANCE);
+        let from = model.vote.partition_point(|v| v.2 < turn - TURN_TOLERANCE);
+        let to = model.vote.partition_point(|v| v.2 <= turn + TURN_TOLERANCE);
         let (px, py) = ((p.x - lo.x) / CELL, (p.y - lo.y) / CELL);
         let (nxf, nyf) = (nx as f64, ny as f64);
-        for &(d, alpha, _) in &model[from..to] {
+        for &(d, alpha, _) in &model.vote[from..to] {
             let fine = if beta >= alpha { beta - alpha } else { beta + FINE - alpha };
             let b = fine / per_bin;
             let (s, c) = lut[fine];
