@@ -165,8 +165,9 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     let mut hypotheses = |scene: &[(Pt, usize, i32)], scale: f64, vote_ms: &mut f64| {
         let voting = std::time::Instant::now();
         let mut hyps: Vec<(usize, Similarity, u32)> = Vec::new();
+        let rot = Rotations::new(scale);
         for (ei, e) in lib.entries.iter().enumerate() {
-            for (pose, votes) in vote(&mut acc, &e.shape, e.template.centroid, scene, scale) {
+            for (pose, votes) in vote(&mut acc, &e.shape, e.template.centroid, scene, &rot) {
                 hyps.push((ei, pose, votes));
             }
         }
@@ -462,20 +463,35 @@ impl Accumulator {
     }
 }
 
-/// Generalised Hough vote of one template over the region: its best few poses (scale 1) and
-/// their votes (3 x 3 x 3 cells around the peak).
-fn vote(acc: &mut Accumulator, model: &ShapeModel, centroid: Pt, scene: &[(Pt, usize, i32)], scale: f64) -> Vec<(Similarity, u32)> {
+/// The vote's rotation table, sine and cosine per [`FINE`] step, scaled to accumulator cells and
+/// by the part's `scale`, so that the inner loop needs no division. Made once per vote of a
+/// region, not per template: with a hundred types its 720 `sin_cos` per template cost 3 % of a
+/// touching pair's time.
+struct Rotations {
+    scale: f64,
+    lut: Vec<(f64, f64)>,
+}
+
+impl Rotations {
+    fn new(scale: f64) -> Self {
+        let fine_step = std::f64::consts::TAU / FINE as f64;
+        let lut = (0..FINE)
+            .map(|b| {
+                let (s, c) = (b as f64 * fine_step).sin_cos();
+                (s * scale / CELL, c * scale / CELL)
+            })
+            .collect();
+        Self { scale, lut }
+    }
+}
+
+/// Generalised Hough vote of one template over the region: its best few poses (at the
+/// rotations' scale) and their votes (3 x 3 x 3 cells around the peak).
+fn vote(acc: &mut Accumulator, model: &ShapeModel, centroid: Pt, scene: &[(Pt, usize, i32)], rot: &Rotations) -> Vec<(Similarity, u32)> {
     let (lo, nx, ny) = (acc.lo, acc.nx, acc.ny);
     let plane = nx * ny;
     let fine_step = std::f64::consts::TAU / FINE as f64;
-    // The rotation table scaled to accumulator cells (and by the part's scale), so that the
-    // inner loop needs no division.
-    let lut: Vec<(f64, f64)> = (0..FINE)
-        .map(|b| {
-            let (s, c) = (b as f64 * fine_step).sin_cos();
-            (s * scale / CELL, c * scale / CELL)
-        })
-        .collect();
+    let (lut, scale) = (&rot.lut, rot.scale);
     let per_bin = FINE / ANGLE_BINS;
     // Candidate cells: the raw count is at least a twentieth of the model's points.
     let floor = (model.vote.len() / 20).clamp(3, u16::MAX as usize) as u16;
