@@ -4,10 +4,10 @@
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::{DMatrix, Matrix3, Vector2, Vector3};
+use nalgebra::{Matrix3, Vector2};
 
 use crate::config::CalibrationConfig;
-use crate::lens::{Lens, PlaneCamera, Similarity};
+use crate::lens::{self, Lens, PlaneCamera, Similarity};
 use crate::vision::Pt;
 
 /// A fitted mapping from frame pixels to robot millimetres.
@@ -255,7 +255,10 @@ impl Calibration {
     pub fn to_robot(&self, x: f64, y: f64) -> Option<(f64, f64)> {
         match self {
             Calibration::Scale(s) => Some((x * s, y * s)),
-            Calibration::Homography { h, .. } => Some(project(h, x, y)),
+            Calibration::Homography { h, .. } => {
+                let m = lens::project(h, Vector2::new(x, y));
+                Some((m.x, m.y))
+            }
             Calibration::Plate(p) => p.camera.to_plane(Vector2::new(x, y)).map(|m| {
                 let r = p.robot.apply(m);
                 (r.x, r.y)
@@ -287,8 +290,8 @@ impl Calibration {
         match self {
             Calibration::Scale(s) => Some((x_mm / s, y_mm / s)),
             Calibration::Homography { h, .. } => {
-                let (x, y) = project(&h.try_inverse()?, x_mm, y_mm);
-                (x.is_finite() && y.is_finite()).then_some((x, y))
+                let p = lens::project(&h.try_inverse()?, Vector2::new(x_mm, y_mm));
+                (p.x.is_finite() && p.y.is_finite()).then_some((p.x, p.y))
             }
             Calibration::Plate(p) => {
                 let plate = p.robot.invert(Vector2::new(x_mm, y_mm));
@@ -446,71 +449,23 @@ pub fn place_in_robot_frame(
     Ok((best, residuals))
 }
 
-fn project(h: &Matrix3<f64>, x: f64, y: f64) -> (f64, f64) {
-    let v = h * Vector3::new(x, y, 1.0);
-    (v.x / v.z, v.y / v.z)
-}
-
-/// Normalisation (Hartley): centre on the mean, scale to mean distance sqrt(2).
-fn normaliser(pts: &[(f64, f64)]) -> Matrix3<f64> {
-    let n = pts.len() as f64;
-    let (mx, my) = pts.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0 / n, a.1 + p.1 / n));
-    let d = pts.iter().map(|p| (p.0 - mx).hypot(p.1 - my)).sum::<f64>() / n;
-    let s = if d > 0.0 { std::f64::consts::SQRT_2 / d } else { 1.0 };
-    Matrix3::new(s, 0.0, -s * mx, 0.0, s, -s * my, 0.0, 0.0, 1.0)
-}
-
 /// Direct linear transform with normalisation; residuals in millimetres.
 pub fn fit(points: &[[f64; 4]]) -> Result<Calibration, CalibrationError> {
     if points.len() < 4 {
         return Err(CalibrationError::TooFew(points.len()));
     }
-    let src: Vec<(f64, f64)> = points.iter().map(|p| (p[0], p[1])).collect();
-    let dst: Vec<(f64, f64)> = points.iter().map(|p| (p[2], p[3])).collect();
-    let (ts, td) = (normaliser(&src), normaliser(&dst));
-    let n = points.len();
-    let mut a = DMatrix::<f64>::zeros(2 * n, 9);
-    for i in 0..n {
-        let s = ts * Vector3::new(src[i].0, src[i].1, 1.0);
-        let d = td * Vector3::new(dst[i].0, dst[i].1, 1.0);
-        let (x, y, u, v) = (s.x / s.z, s.y / s.z, d.x / d.z, d.y / d.z);
-        let r1 = [-x, -y, -1.0, 0.0, 0.0, 0.0, u * x, u * y, u];
-        let r2 = [0.0, 0.0, 0.0, -x, -y, -1.0, v * x, v * y, v];
-        for j in 0..9 {
-            a[(2 * i, j)] = r1[j];
-            a[(2 * i + 1, j)] = r2[j];
-        }
-    }
-    // The null vector of A: the right singular vector of the smallest singular value.
-    let ata = a.transpose() * &a;
-    let eig = ata.symmetric_eigen();
-    let (k, &smallest) = eig.eigenvalues.iter().enumerate().min_by(|x, y| x.1.total_cmp(y.1)).ok_or(CalibrationError::Degenerate)?;
-    let mut sorted: Vec<f64> = eig.eigenvalues.iter().copied().collect();
-    sorted.sort_by(f64::total_cmp);
-    // A unique solution needs the second-smallest eigenvalue clearly above the smallest.
-    if !(sorted[1] > 1e-9 && smallest <= sorted[1] * 1e-3 + 1e-12) {
-        return Err(CalibrationError::Degenerate);
-    }
-    let hv = eig.eigenvectors.column(k);
-    let hn = Matrix3::new(hv[0], hv[1], hv[2], hv[3], hv[4], hv[5], hv[6], hv[7], hv[8]);
-    let td_inv = td.try_inverse().ok_or(CalibrationError::Degenerate)?;
-    let mut h = td_inv * hn * ts;
-    if h[(2, 2)].abs() < 1e-15 {
-        return Err(CalibrationError::Degenerate);
-    }
-    h /= h[(2, 2)];
+    let h = lens::homography(points).ok_or(CalibrationError::Degenerate)?;
     let mut sq = 0.0;
     let mut max: f64 = 0.0;
     for p in points {
-        let (x, y) = project(&h, p[0], p[1]);
-        let e = (x - p[2]).hypot(y - p[3]);
+        let e = (lens::project(&h, Vector2::new(p[0], p[1])) - Vector2::new(p[2], p[3])).norm();
         sq += e * e;
         max = max.max(e);
     }
     if !sq.is_finite() {
         return Err(CalibrationError::Degenerate);
     }
-    Ok(Calibration::Homography { h, rms_mm: (sq / n as f64).sqrt(), max_mm: max })
+    Ok(Calibration::Homography { h, rms_mm: (sq / points.len() as f64).sqrt(), max_mm: max })
 }
 
 #[cfg(test)]

@@ -449,7 +449,28 @@ pub enum SourceConfig {
         timeout: Duration,
     },
     /// A GigE Vision or USB3 Vision camera through Aravis.
-    Genicam(crate::appliance::genicam::GenicamSettings),
+    Genicam(GenicamSettings),
+}
+
+/// What `[camera.source] kind = "genicam"` asks of the camera.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GenicamSettings {
+    /// Aravis device id (`Vendor-Model-Serial`, as `arv-tool-0.8` lists it); None: the only one.
+    pub device: Option<String>,
+    /// ExposureTime (or ExposureTimeAbs), microseconds.
+    pub exposure_us: Option<f64>,
+    /// Gain (dB) or GainRaw, whichever the camera has.
+    pub gain: Option<f64>,
+    /// PixelFormat by name (`Mono8`); None: the camera's current one.
+    pub pixel_format: Option<String>,
+    /// TriggerSource line for a sensor or encoder (`Line0`); None: software trigger or free-run.
+    pub hardware_trigger: Option<String>,
+    /// GigE packet size, bytes (9000 for jumbo frames); None: negotiated by Aravis.
+    pub packet_size: Option<u32>,
+    /// No frame this long after a trigger: camera fault.
+    pub timeout: Duration,
+    /// Stream continuously and hand out the newest frame (`trigger = "free-run"`).
+    pub free_run: bool,
 }
 
 /// `"modbus"` or `"free-run"`.
@@ -1052,7 +1073,7 @@ fn source_of(c: &Check<'_>, k: &dyn Fn(&str) -> String, s: &raw::Source, base: &
                     "does not go with source.hardware_trigger: with a hardware trigger every frame the camera sends is an acquisition; leave trigger unset",
                 ));
             }
-            SourceConfig::Genicam(crate::appliance::genicam::GenicamSettings {
+            SourceConfig::Genicam(GenicamSettings {
                 device: name("device", &s.device)?,
                 exposure_us: s.exposure_us.map(|v| c.real(&k("source.exposure_us"), v, 1.0, 1e8)).transpose()?,
                 gain: s.gain.map(|v| c.real(&k("source.gain"), v, -1000.0, 10000.0)).transpose()?,

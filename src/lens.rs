@@ -105,6 +105,58 @@ impl Lens {
     }
 }
 
+/// The homography carrying each point's first two coordinates onto its last two (a direct linear
+/// transform on Hartley-normalised points), scaled so that its last entry is 1; None when the
+/// points do not determine one (fewer than four, on a line, repeated).
+pub fn homography(points: &[[f64; 4]]) -> Option<Matrix3<f64>> {
+    if points.len() < 4 {
+        return None;
+    }
+    let src: Vec<(f64, f64)> = points.iter().map(|p| (p[0], p[1])).collect();
+    let dst: Vec<(f64, f64)> = points.iter().map(|p| (p[2], p[3])).collect();
+    let (ts, td) = (normaliser(&src), normaliser(&dst));
+    let n = points.len();
+    let mut a = DMatrix::<f64>::zeros(2 * n, 9);
+    for i in 0..n {
+        let s = ts * Vector3::new(src[i].0, src[i].1, 1.0);
+        let d = td * Vector3::new(dst[i].0, dst[i].1, 1.0);
+        let (x, y, u, v) = (s.x / s.z, s.y / s.z, d.x / d.z, d.y / d.z);
+        let r1 = [-x, -y, -1.0, 0.0, 0.0, 0.0, u * x, u * y, u];
+        let r2 = [0.0, 0.0, 0.0, -x, -y, -1.0, v * x, v * y, v];
+        for j in 0..9 {
+            a[(2 * i, j)] = r1[j];
+            a[(2 * i + 1, j)] = r2[j];
+        }
+    }
+    // The null vector of A: the right singular vector of the smallest singular value.
+    let ata = a.transpose() * &a;
+    let eig = ata.symmetric_eigen();
+    let (k, &smallest) = eig.eigenvalues.iter().enumerate().min_by(|x, y| x.1.total_cmp(y.1))?;
+    let mut sorted: Vec<f64> = eig.eigenvalues.iter().copied().collect();
+    sorted.sort_by(f64::total_cmp);
+    // A unique solution needs the second-smallest eigenvalue clearly above the smallest.
+    if !(sorted[1] > 1e-9 && smallest <= sorted[1] * 1e-3 + 1e-12) {
+        return None;
+    }
+    let hv = eig.eigenvectors.column(k);
+    let hn = Matrix3::new(hv[0], hv[1], hv[2], hv[3], hv[4], hv[5], hv[6], hv[7], hv[8]);
+    let mut h = td.try_inverse()? * hn * ts;
+    if h[(2, 2)].abs() < 1e-15 {
+        return None;
+    }
+    h /= h[(2, 2)];
+    Some(h)
+}
+
+/// Normalisation (Hartley): centre on the mean, scale to mean distance sqrt(2).
+fn normaliser(pts: &[(f64, f64)]) -> Matrix3<f64> {
+    let n = pts.len() as f64;
+    let (mx, my) = pts.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0 / n, a.1 + p.1 / n));
+    let d = pts.iter().map(|p| (p.0 - mx).hypot(p.1 - my)).sum::<f64>() / n;
+    let s = if d > 0.0 { std::f64::consts::SQRT_2 / d } else { 1.0 };
+    Matrix3::new(s, 0.0, -s * mx, 0.0, s, -s * my, 0.0, 0.0, 1.0)
+}
+
 /// Applies a homography to a point.
 pub fn project(h: &Matrix3<f64>, p: Vector2<f64>) -> Vector2<f64> {
     let v = h * Vector3::new(p.x, p.y, 1.0);
@@ -221,10 +273,7 @@ pub fn fit_plate(views: &[View], width: usize, height: usize) -> Result<PlateFit
                 [p.x, p.y, u.x, u.y]
             })
             .collect();
-        match crate::calibration::fit(&pairs) {
-            Ok(crate::calibration::Calibration::Homography { h, .. }) => Ok(h),
-            _ => Err(FitError::Degenerate(i)),
-        }
+        homography(&pairs).ok_or(FitError::Degenerate(i))
     };
     let h0 = dlt(0)?;
     let h0_inv = h0.try_inverse().ok_or(FitError::Degenerate(0))?;

@@ -9,8 +9,57 @@ use opencv::core::{self, KeyPoint, Mat, Point2f, Size, Vector};
 use opencv::prelude::*;
 use opencv::{calib3d, features2d, imgproc};
 
-pub use crate::sim::optics::Grid;
 use crate::vision::GrayImage;
+
+/// A calibration plate's pattern.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Grid {
+    /// Dark dots in rows and columns.
+    Circles,
+    /// Dark dots, every other row shifted by half a pitch (OpenCV's asymmetric grid).
+    AsymmetricCircles,
+    /// Black and white squares; the points are the inner corners.
+    Chessboard,
+}
+
+impl std::str::FromStr for Grid {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "circles" => Ok(Grid::Circles),
+            "asymmetric-circles" => Ok(Grid::AsymmetricCircles),
+            "chessboard" => Ok(Grid::Chessboard),
+            _ => Err(format!("grid {s:?}: expected circles, asymmetric-circles or chessboard")),
+        }
+    }
+}
+
+impl Grid {
+    /// The name on the command line and in a calibration file.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Grid::Circles => "circles",
+            Grid::AsymmetricCircles => "asymmetric-circles",
+            Grid::Chessboard => "chessboard",
+        }
+    }
+
+    /// Plate millimetres of the grid points in the order OpenCV's grid finders report them
+    /// (row by row). `pitch`: between neighbouring dots or corners; for the asymmetric grid
+    /// OpenCV's square size: dots in a row are two pitches apart, rows one pitch.
+    pub fn points(self, cols: usize, rows: usize, pitch: f64) -> Vec<Vector2<f64>> {
+        let mut out = Vec::with_capacity(cols * rows);
+        for i in 0..rows {
+            for j in 0..cols {
+                out.push(match self {
+                    Grid::AsymmetricCircles => Vector2::new((2 * j + i % 2) as f64 * pitch, i as f64 * pitch),
+                    _ => Vector2::new(j as f64 * pitch, i as f64 * pitch),
+                });
+            }
+        }
+        out
+    }
+}
 
 /// A plate's pattern and size.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -207,7 +207,7 @@ pub(crate) struct Worker {
     /// The operator view's history, if kept.
     pub history: Option<super::history::Recorder>,
     /// Told of every frame and fault.
-    pub changes: super::Changes,
+    pub changes: super::changes::Changes,
     /// The jobs the PLC may switch between, and what loading one needs.
     pub jobs: Vec<crate::config::JobConfig>,
     pub source_config: crate::config::SourceConfig,
@@ -277,7 +277,7 @@ impl Worker {
                 let ids: Vec<String> = self.jobs.iter().map(|j| j.id.to_string()).collect();
                 Err(format!("job {id} is not configured (jobs: {})", ids.join(", ")))
             }
-            Some(job) => super::load_job(&self.name, job, &self.source_config, &self.base_params)
+            Some(job) => super::job::load_job(&self.name, job, &self.source_config, &self.base_params)
                 .map(|l| (job.clone(), l))
                 .map_err(|e| format!("job {id} ({}): {}", job.name, crate::logging::error_chain(&e))),
         };
@@ -333,7 +333,7 @@ impl Worker {
         if changed {
             if ok {
                 tracing::info!(camera = %self.name, "camera OK");
-                super::bump(&self.changes);
+                super::changes::bump(&self.changes);
             } else {
                 tracing::warn!(camera = %self.name, "camera not OK");
                 self.note_fault("camera not OK: it stopped answering or is not connected".into());
@@ -435,7 +435,7 @@ impl Worker {
             });
         }
         self.note_results(acq_id, results, estimated, cycle);
-        super::bump(&self.changes);
+        super::changes::bump(&self.changes);
     }
 
     /// One line per final result, with the estimate's numbers at debug level.
@@ -501,7 +501,7 @@ impl Worker {
         live.last_error = Some(msg);
         live.last_error_at_s = self.started.elapsed().as_secs_f64();
         drop(live);
-        super::bump(&self.changes);
+        super::changes::bump(&self.changes);
     }
 
     /// The operator view's copy of an acquisition: counters from the final results (a no-part

@@ -159,7 +159,7 @@ impl CameraHandle {
         let types = kb.type_count() as u16;
         *self.templates.lock().unwrap_or_else(|p| p.into_inner()) = kb;
         self.handshake.lock().unwrap_or_else(|p| p.into_inner()).set_types_enrolled(types);
-        super::bump(&self.changes);
+        super::changes::bump(&self.changes);
         tracing::info!(
             camera = %self.name,
             "{} template {} {} (id {}) from part {} of {from}, asked by {}; {saved}",

@@ -15,6 +15,7 @@ use aravis::prelude::*;
 use aravis::{Camera, PixelFormat, Stream};
 
 use super::source::{Frame, Source, SourceError};
+use crate::config::GenicamSettings;
 use crate::vision::GrayImage;
 
 /// Buffers queued in the stream: enough to ride out an estimate at a hardware trigger's pace.
@@ -29,27 +30,6 @@ const BACKOFF_MAX: Duration = Duration::from_secs(5);
 const PROBE_EVERY: Duration = Duration::from_millis(200);
 /// A camera that has not answered a probe for this long is lost.
 const ANSWER_WITHIN: Duration = Duration::from_millis(1000);
-
-/// What `[camera.source] kind = "genicam"` asks of the camera.
-#[derive(Debug, Clone, PartialEq)]
-pub struct GenicamSettings {
-    /// Aravis device id (`Vendor-Model-Serial`, as `arv-tool-0.8` lists it); None: the only one.
-    pub device: Option<String>,
-    /// ExposureTime (or ExposureTimeAbs), microseconds.
-    pub exposure_us: Option<f64>,
-    /// Gain (dB) or GainRaw, whichever the camera has.
-    pub gain: Option<f64>,
-    /// PixelFormat by name (`Mono8`); None: the camera's current one.
-    pub pixel_format: Option<String>,
-    /// TriggerSource line for a sensor or encoder (`Line0`); None: software trigger or free-run.
-    pub hardware_trigger: Option<String>,
-    /// GigE packet size, bytes (9000 for jumbo frames); None: negotiated by Aravis.
-    pub packet_size: Option<u32>,
-    /// No frame this long after a trigger: camera fault.
-    pub timeout: Duration,
-    /// Stream continuously and hand out the newest frame (`trigger = "free-run"`).
-    pub free_run: bool,
-}
 
 /// What is known of the camera, for the log, the page and `/metrics`.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]

@@ -103,7 +103,7 @@ impl Recorder {
             .name(format!("history-{camera}"))
             .spawn(move || {
                 // Work for people, not for the PLC: the camera worker goes first.
-                super::lower_priority("history");
+                super::priority::lower_priority("history");
                 file(rx, entries, keep.max(1), &name, changed)
             })
             .expect("spawn history thread");

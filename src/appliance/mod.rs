@@ -4,9 +4,13 @@
 
 pub mod archive;
 pub mod camera;
+pub mod changes;
 pub mod enrol;
+pub mod error;
 pub mod genicam;
 pub mod history;
+pub mod job;
+pub mod priority;
 pub mod source;
 
 use std::net::SocketAddr;
@@ -17,77 +21,19 @@ use std::time::{Duration, Instant};
 use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 
-use crate::calibration::Calibration;
-use crate::config::{CameraConfig, Config, JobConfig, KbSource, SourceConfig};
+use crate::config::{CameraConfig, Config, KbSource, SourceConfig};
 use crate::handshake::{Handshake, Settings};
 use crate::kb::KnowledgeBase;
 use crate::modbus::server::{self, Station, Stations, Stats};
 use crate::sim::Simulator;
-use crate::vision::{Estimator, Params};
+use crate::vision::Params;
 pub use camera::Live;
 use camera::Worker;
+pub use changes::{Changes, bump};
+pub use error::StartError;
+pub use job::{Loaded, load_job};
+pub use priority::{VIEW_NICE, lower_priority};
 use source::{DirSource, SimSource, Source, VideoSource};
-
-/// Why the appliance cannot start; each names the camera or address at fault.
-#[derive(Debug, thiserror::Error)]
-pub enum StartError {
-    /// Its knowledge base cannot be loaded.
-    #[error("camera {camera}: knowledge base")]
-    Kb {
-        /// The camera ("camera[0] (line 1)").
-        camera: String,
-        /// What is wrong with the file.
-        source: crate::kb::KbError,
-    },
-    /// Its templates do not make an estimator.
-    #[error("camera {camera}: cannot build the estimator")]
-    Estimator {
-        /// The camera.
-        camera: String,
-        /// Why not.
-        source: crate::vision::EstimatorError,
-    },
-    /// The simulated camera cannot render its scenes.
-    #[error("camera {camera}: simulated camera: {message}")]
-    Sim {
-        /// The camera.
-        camera: String,
-        /// The simulator's complaint.
-        message: String,
-    },
-    /// Its calibration does not fit.
-    #[error("camera {camera}: calibration")]
-    Calibration {
-        /// The camera.
-        camera: String,
-        /// Why not.
-        source: crate::calibration::CalibrationError,
-    },
-    /// Its image archive's folder cannot be made or read.
-    #[error("camera {camera}: image archive {dir}")]
-    Archive {
-        /// The camera.
-        camera: String,
-        /// The archive folder.
-        dir: std::path::PathBuf,
-        /// Why the system refused it.
-        source: std::io::Error,
-    },
-    /// The OPC UA server cannot be set up (its PKI folder, its information model).
-    #[error("OPC UA: {message}")]
-    Opcua {
-        /// What went wrong, naming the file or node.
-        message: String,
-    },
-    /// The PLC's port is taken or not ours.
-    #[error("cannot listen for Modbus on {addr}")]
-    Bind {
-        /// The configured address.
-        addr: SocketAddr,
-        /// Why the system refused it.
-        source: std::io::Error,
-    },
-}
 
 /// A camera of the running appliance, for the operator view and tests.
 pub struct CameraHandle {
@@ -148,53 +94,6 @@ pub struct Running {
     pub shutdown: CancellationToken,
     stop: Arc<AtomicBool>,
     tasks: Vec<tokio::task::JoinHandle<()>>,
-}
-
-/// A job made ready to run: its templates, the estimator built on them with the job's accept
-/// threshold, and its calibration. Nothing of the camera changes until all of it is there.
-pub struct Loaded {
-    /// The job's templates.
-    pub kb: KnowledgeBase,
-    /// Where the templates came from, for the log.
-    pub kb_desc: String,
-    /// The estimator on them.
-    pub estimator: Estimator,
-    /// The parameters it was built with.
-    pub params: Params,
-    /// Pixels to robot millimetres.
-    pub calibration: Calibration,
-}
-
-/// Loads a job of camera `camera` (the start-up job, or one the PLC asks for).
-pub fn load_job(camera: &str, job: &JobConfig, source: &SourceConfig, base: &Params) -> Result<Loaded, StartError> {
-    let params = Params { accept_threshold: job.accept_threshold, ..base.clone() };
-    let (kb, kb_desc) = match &job.kb {
-        KbSource::File(p) => {
-            let kb = KnowledgeBase::load(p).map_err(|source| StartError::Kb { camera: camera.to_string(), source })?;
-            let desc = format!("{} ({} templates, {} types)", p.display(), kb.entries.len(), kb.type_count());
-            (kb, desc)
-        }
-        KbSource::Simulator => {
-            let SourceConfig::Sim { seed, width, height, noise, .. } = *source else {
-                unreachable!("the configuration only allows kb_from_simulator with a sim source")
-            };
-            let sim_err = |e: &dyn std::fmt::Display| StartError::Sim { camera: camera.to_string(), message: e.to_string() };
-            let sim = Simulator::new(SimSource::config(seed, width, height, noise)).map_err(|e| sim_err(&e))?;
-            let names = sim.type_names();
-            let mut out = KnowledgeBase::default();
-            for t in sim.enrolled(&params).map_err(|e| sim_err(&e))? {
-                let source = format!("simulator template {}_{}", t.type_name, t.face);
-                out.entries.push(crate::kb::Entry { template: t, source });
-            }
-            let desc = names.iter().enumerate().map(|(i, n)| format!("{n} = {}", i + 1)).collect::<Vec<_>>().join(", ");
-            (out, format!("enrolled from the simulated camera's templates ({desc})"))
-        }
-    };
-    let estimator =
-        Estimator::new(&kb.templates(), params.clone()).map_err(|source| StartError::Estimator { camera: camera.to_string(), source })?;
-    let calibration =
-        Calibration::from_config(&job.calibration).map_err(|source| StartError::Calibration { camera: camera.to_string(), source })?;
-    Ok(Loaded { kb, kb_desc, estimator, params, calibration })
 }
 
 /// A camera's source, and a GenICam camera's counters for the page and `/metrics`.
@@ -414,29 +313,6 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
     }
     let cameras = Arc::new(cameras);
     Ok(Running { modbus_addr, http_addr: None, opcua_url: None, cameras, stations, stats, started, shutdown, stop, tasks })
-}
-
-/// Bumped whenever something the operator view shows changes (a frame, a fault, a history
-/// entry filed, a change made from the page): the page's live updates wait on it instead of
-/// polling.
-pub type Changes = Arc<tokio::sync::watch::Sender<u64>>;
-
-/// Nice value of the threads that only serve people (the operator view, its history): the
-/// camera workers and the Modbus service (nice 0) get the CPU first.
-pub const VIEW_NICE: i32 = 10;
-
-/// Lowers the calling thread to [`VIEW_NICE`]; `what` names it in the log if that fails.
-pub fn lower_priority(what: &str) {
-    // SAFETY: plain system calls on the calling thread's own id; no memory is shared.
-    let rc = unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, VIEW_NICE) };
-    if rc != 0 {
-        tracing::warn!("{what} keeps its priority: setpriority failed: {}", std::io::Error::last_os_error());
-    }
-}
-
-/// Says that something changed.
-pub fn bump(changes: &Changes) {
-    changes.send_modify(|v| *v = v.wrapping_add(1));
 }
 
 /// Why a write from the operator view did not happen.

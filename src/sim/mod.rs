@@ -161,7 +161,7 @@ impl Simulator {
 
     /// The calibration plate that covers most of the field, as the cell's camera sees it (the
     /// flat render when there is no camera model), and the plate; see [`Simulator::plate_image`].
-    pub fn plate(&self, grid: optics::Grid, blur: f64) -> Result<(GrayImage, optics::Plate), SimError> {
+    pub fn plate(&self, grid: crate::plate::Grid, blur: f64) -> Result<(GrayImage, optics::Plate), SimError> {
         let (w, h) = (self.cfg.width as f64 / self.px_per_mm, self.cfg.height as f64 / self.px_per_mm);
         let plate = optics::Plate::covering(grid, w, h);
         Ok((self.plate_image(&plate, blur)?, plate))

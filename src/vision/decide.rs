@@ -12,7 +12,7 @@
 use std::fmt;
 
 use super::geometry::Pt;
-use super::{Face, Reason};
+use super::part::{Face, Reason};
 
 /// A template named by type and face, as the text shows it ("bracket up").
 #[derive(Debug, Clone, PartialEq)]

@@ -440,7 +440,7 @@ impl Alike {
 /// `near` over runs twice that ([`separation`]), the separation the estimator tells siblings
 /// apart by in the cleanest frame. Pairs whose log-polar signals differ by more than 0.1 are
 /// not registered: their outlines differ everywhere.
-pub fn alike(lib: &super::Library, near: f64, min_fit: f64) -> Vec<Alike> {
+pub fn alike(lib: &super::template::Library, near: f64, min_fit: f64) -> Vec<Alike> {
     let (apart, min_run) = separation(near);
     let corr = &lib.correlator;
     let mut out = Vec::new();

@@ -23,7 +23,10 @@ pub mod fld;
 pub mod frame;
 pub mod geometry;
 pub mod lines;
+pub mod params;
+pub mod part;
 pub mod register;
+pub mod shape;
 pub mod signal;
 pub mod template;
 
@@ -32,243 +35,14 @@ use std::time::Instant;
 pub use frame::{FrameError, GrayImage, GrayView, MIN_SIDE};
 pub use geometry::Pt;
 pub use lines::{LineDetector, LineFeature, Segment};
+pub use params::Params;
+pub use part::{Face, Reason};
 pub use template::{KeepOut, LeftOut, Library, Template, TemplateError};
 
-use boundary::RefineParams;
 use decide::{Bounds, Decision, Follows, Local, Measured, Named, NextFit, Order, OutlineFit, RegionFit, Rival};
-use detect::DetectParams;
 pub use geometry::Similarity;
 use geometry::{area_centroid, bounds};
 use register::OutlineIndex;
-
-/// Which side of the part faces the camera.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum Face {
-    /// The face enrolled as "up" (FACE 1).
-    Up,
-    /// The other face (FACE 2).
-    Down,
-}
-
-impl Face {
-    /// "up" or "down", as the KB and the log spell it.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Face::Up => "up",
-            Face::Down => "down",
-        }
-    }
-    /// Register encoding: 1 up, 2 down (0 is "unknown").
-    pub fn code(self) -> u16 {
-        match self {
-            Face::Up => 1,
-            Face::Down => 2,
-        }
-    }
-}
-
-impl std::str::FromStr for Face {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "up" => Ok(Face::Up),
-            "down" => Ok(Face::Down),
-            other => Err(format!("face must be \"up\" or \"down\", not {other:?}")),
-        }
-    }
-}
-
-impl std::fmt::Display for Face {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-/// Why a part was not accepted. The numeric codes are the register map's REASON values.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum Reason {
-    /// Accepted (0).
-    Ok,
-    /// No part in the frame: the one result of an empty belt (1).
-    NoPart,
-    /// No template fits well enough (2).
-    UnknownType,
-    /// The line features agree less than the threshold (3).
-    LowConfidence,
-    /// Another type or face fits nearly as well (4).
-    Ambiguous,
-    /// Touching or overlapping parts that cannot be told apart (5).
-    Touching,
-    /// Not the EXPECTED_TYPE the PLC asked for (6).
-    WrongType,
-    /// No usable frame: the result of a camera or frame fault (7).
-    FrameError,
-    /// Cut by the frame's edge (8).
-    AtBorder,
-    /// Another part lies partly on this one: grasping it would drag the one on top.
-    Covered,
-    /// The gripper's keep-out footprint around the part holds other material.
-    NoClearance,
-}
-
-impl Reason {
-    /// Every reason, in code order.
-    pub const ALL: [Reason; 11] = [
-        Reason::Ok,
-        Reason::NoPart,
-        Reason::UnknownType,
-        Reason::LowConfidence,
-        Reason::Ambiguous,
-        Reason::Touching,
-        Reason::WrongType,
-        Reason::FrameError,
-        Reason::AtBorder,
-        Reason::Covered,
-        Reason::NoClearance,
-    ];
-    /// The REASON register's value.
-    pub fn code(self) -> u16 {
-        self as u16
-    }
-    /// The reason as the log and the page write it.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Reason::Ok => "ok",
-            Reason::NoPart => "no part",
-            Reason::UnknownType => "unknown type",
-            Reason::LowConfidence => "low confidence",
-            Reason::Ambiguous => "ambiguous",
-            Reason::Touching => "touching/overlapping",
-            Reason::WrongType => "wrong type",
-            Reason::FrameError => "frame error",
-            Reason::AtBorder => "at the image border",
-            Reason::Covered => "covered",
-            Reason::NoClearance => "no clearance",
-        }
-    }
-}
-
-impl std::fmt::Display for Reason {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-/// Tunables of the estimator. Defaults follow the method; the decision thresholds were set on
-/// the built-in simulator's scenes (README, "Measured accuracy").
-#[derive(Debug, Clone)]
-pub struct Params {
-    /// Frame pixels per pixel of the decimated frame the coarse stages run on.
-    pub coarse_factor: usize,
-    /// Gaussian blur before Canny, decimated pixels (the study's 1.5).
-    pub blur_sigma: f64,
-    /// Canny's low threshold as a fraction of the automatic high one (the study's 0.4).
-    pub canny_low_ratio: f64,
-    /// Closing element diameter, decimated pixels.
-    pub closing: i32,
-    /// Minimum part area, frame pixels (None: a quarter of the smallest template's area).
-    pub min_area: Option<f64>,
-    /// Line segment detector for the line features.
-    pub line_detector: LineDetector,
-    /// Segments shorter than this fraction of the part's bounding-box diagonal are dropped.
-    pub min_segment_fraction: f64,
-    /// Edge level between the belt (0) and the part (1): low, so that the darker, rounded
-    /// margins of forged parts count as part, yet clear of the belt's texture and noise.
-    pub edge_level: f64,
-    /// Bins of the r(phi) signal.
-    pub signal_bins: usize,
-    /// Templates refined by ICP per part (the best by correlation distance).
-    pub candidates: usize,
-    /// Outline distance (template pixels) within which a point counts as fitting, at zero noise;
-    /// grows with the measured noise.
-    pub fit_tolerance: f64,
-    /// Tolerance growth with the template's size (fraction of its RMS radius).
-    pub fit_tolerance_rel: f64,
-    /// Minimum fit (fraction of outline explained, both ways) to name a type.
-    pub min_fit: f64,
-    /// A different type or face fitting within this margin of the best is a rival ...
-    pub ambiguity_margin: f64,
-    /// ... that makes the part ambiguous unless the best's confidence beats the rival's by this.
-    pub confidence_margin: f64,
-    /// Largest fraction of outline that may be foreign (extra) or unseen (missing).
-    pub max_foreign: f64,
-    /// Accepted scale range relative to the template.
-    pub scale_range: (f64, f64),
-    /// A region larger than this multiple of the largest template's area is several parts.
-    pub touching_area_ratio: f64,
-    /// Separate material of at least this fraction of the smallest template's area (and below
-    /// the minimum part area) counts as debris.
-    pub debris_fraction: f64,
-    /// Least fraction of a template's outline the image must explain for a part found in a
-    /// region of several parts to count as whole (the rest is contact with its neighbour).
-    pub min_support: f64,
-    /// A part told from a tied sibling by where the two differ must not depart from the best
-    /// template elsewhere by this many times the separation that counts as apart (the outlines'
-    /// noise, see `differ::separation`), seen in the frame: twice it, six times the tight
-    /// tolerance, deeper than the outline's noise and shallower than a design revision's change
-    /// of a few millimetres.
-    pub departure_depth: f64,
-    /// ... and at least this many times it wide (the area between the outlines over the
-    /// depth): three times, two to five millimetres, a notch or lug rather than a slit the
-    /// outline ran further into than the template's.
-    pub departure_width: f64,
-    /// Confidence: lambda = lambda0 (1 - alpha noise).
-    pub lambda0: f64,
-    /// Noise's weight in lambda (the study's 0.5).
-    pub alpha: f64,
-    /// Confidence at or above which a part is accepted.
-    pub accept_threshold: f64,
-}
-
-impl Default for Params {
-    fn default() -> Self {
-        Self {
-            coarse_factor: 4,
-            blur_sigma: 1.5,
-            canny_low_ratio: 0.4,
-            closing: 5,
-            min_area: None,
-            line_detector: LineDetector::Fld,
-            min_segment_fraction: 0.05,
-            edge_level: 0.1,
-            signal_bins: 1024,
-            candidates: 3,
-            fit_tolerance: 2.0,
-            fit_tolerance_rel: 0.015,
-            min_fit: 0.75,
-            ambiguity_margin: 0.1,
-            confidence_margin: 0.15,
-            max_foreign: 0.06,
-            scale_range: (0.85, 1.18),
-            touching_area_ratio: 1.3,
-            debris_fraction: 0.01,
-            min_support: 0.93,
-            departure_depth: 2.0,
-            departure_width: 3.0,
-            lambda0: 25.0,
-            alpha: 0.5,
-            accept_threshold: 0.5,
-        }
-    }
-}
-
-impl Params {
-    pub(crate) fn detect_params(&self, min_area: f64, min_debris_area: f64) -> DetectParams {
-        DetectParams {
-            min_debris_area,
-            factor: self.coarse_factor,
-            blur_sigma: self.blur_sigma,
-            canny_low_ratio: self.canny_low_ratio,
-            closing: self.closing,
-            min_area,
-            drop_border_specks: false,
-        }
-    }
-    pub(crate) fn refine_params(&self, factor: usize) -> RefineParams {
-        // The closing leaves the coarse outline within about one decimated pixel of the edge.
-        RefineParams { spacing: 2.5, search: 3.0 * factor as f64 + 4.0, profile_sigma: self.blur_sigma, across: 2, level: self.edge_level }
-    }
-}
 
 /// Wall time of each stage, milliseconds (summed over the frame's parts).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

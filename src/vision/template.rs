@@ -2,15 +2,16 @@
 //! correlates against.
 
 use super::boundary;
-use super::clump::ShapeModel;
 use super::correlate::{Alignment, Correlator, Key, Spectrum};
 use super::detect::{self, DetectParams};
 use super::frame::{FrameError, GrayView};
 use super::geometry::{Pt, area_centroid, bounds};
 use super::lines::{self, Segment};
+use super::params::Params;
+use super::part::Face;
 use super::register::OutlineIndex;
+use super::shape::ShapeModel;
 use super::signal::log_radius_signal;
-use super::{Face, Params};
 
 /// What the estimator knows about one face of one part type.
 #[derive(Debug, Clone, PartialEq)]
@@ -38,7 +39,7 @@ pub struct Template {
     /// Line segments (frame of the template image).
     pub segments: Vec<Segment>,
     /// Edges inside the part (holes, pockets, bosses): points and the unit normal from the
-    /// brighter side to the darker, template pixels (see [`super::clump::interior_edges`]). They
+    /// brighter side to the darker, template pixels (see [`super::shape::interior_edges`]). They
     /// tell which of two overlapping parts lies on top. Empty (a knowledge base from an earlier
     /// build, a featureless part): the outlines alone tell it.
     pub interior: Vec<(Pt, Pt)>,
@@ -152,7 +153,7 @@ impl Template {
         let (coarse, i, left_out) = part_region(image, params, min_area)?;
         let blob = &coarse.blobs[i];
         let refined = boundary::refine(image, &blob.outline, noise, &params.refine_params(coarse.factor));
-        let interior = super::clump::interior_edges(&coarse, &refined.outline, noise, refined.contrast);
+        let interior = super::shape::interior_edges(&coarse, &refined.outline, noise, refined.contrast);
         let outline = refined.outline;
         let (area, centroid) = area_centroid(&outline);
         let (lo, hi) = bounds(&outline);
