@@ -360,13 +360,15 @@ impl Handshake {
     pub fn word(&self, a: u16) -> u16 {
         let head = self.queue.front();
         let float = |v: f32, second: bool| self.split(v.to_bits(), second);
+        // Either word of a two-word value that starts at `at`.
+        let two = |a: u16, at: u16| a == at || a == at + 1;
         match a {
             addr::TRIGGER => self.trigger as u16,
             addr::RESULT_ACK => self.result_ack,
             addr::CLEAR_ERROR => 0,
             addr::ONLINE => self.online as u16,
             addr::EXPECTED_TYPE => self.expected_type,
-            5 | 6 => self.user_data[(a - addr::USER_DATA) as usize],
+            a if two(a, addr::USER_DATA) => self.user_data[(a - addr::USER_DATA) as usize],
             addr::BOOT_ID => self.settings.boot_id,
             addr::JOB_REQUEST => self.job_request,
             addr::JOB_ID => self.job_id,
@@ -414,11 +416,11 @@ impl Handshake {
                     addr::CONFIDENCE => u16_word(p.confidence * 1000.0).min(1000),
                     addr::PART_INDEX => q.index,
                     addr::PART_COUNT => q.count,
-                    212 | 213 => float(angle_f32(p.angle_deg), a == 213),
-                    214 | 215 => float(p.x_mm as f32, a == 215),
-                    216 | 217 => float(p.y_mm as f32, a == 217),
+                    a if two(a, addr::ANGLE_F32) => float(angle_f32(p.angle_deg), a > addr::ANGLE_F32),
+                    a if two(a, addr::X_F32) => float(p.x_mm as f32, a > addr::X_F32),
+                    a if two(a, addr::Y_F32) => float(p.y_mm as f32, a > addr::Y_F32),
                     addr::PROCESSING_TIME => u16_word(q.processing_ms * 10.0),
-                    219 | 220 => self.split(q.user_data, a == 220),
+                    a if two(a, addr::RESULT_USER_DATA) => self.split(q.user_data, a > addr::RESULT_USER_DATA),
                     _ => 0,
                 }
             }
