@@ -8,7 +8,7 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
-use crate::registers::{self as map, RobotView, addr, error_code, i16_word, status, u16_word, u32_from_words, u32_words};
+use crate::registers::{self as map, RobotView, addr, error_code, status, u16_word, u32_from_words, u32_words};
 pub use crate::registers::{WordOrder, job_status};
 use crate::vision::Reason;
 
@@ -231,20 +231,6 @@ pub struct Handshake {
     counters: Counters,
 }
 
-/// Angle in degrees to the ANGLE register: 0.01 deg, -18000..17999.
-pub fn angle_word(deg: f64) -> u16 {
-    let mut a = (deg + 180.0).rem_euclid(360.0) - 180.0;
-    if (a * 100.0).round() >= 18000.0 {
-        a -= 360.0;
-    }
-    i16_word(a * 100.0)
-}
-
-/// Angle in degrees as ANGLE_F32 holds it: -180 <= a < 180, single precision.
-pub fn angle_f32(deg: f64) -> f32 {
-    ((deg + 180.0).rem_euclid(360.0) - 180.0) as f32
-}
-
 impl Handshake {
     /// A handshake at power-up: nothing queued, no acquisition running.
     pub fn new(settings: Settings) -> Self {
@@ -410,16 +396,16 @@ impl Handshake {
                     addr::REASON => p.reason.code(),
                     addr::TYPE_ID => p.type_id,
                     addr::FACE => p.face,
-                    addr::ANGLE => angle_word(p.angle_deg),
-                    addr::X => i16_word(p.x_mm * 10.0),
-                    addr::Y => i16_word(p.y_mm * 10.0),
-                    addr::CONFIDENCE => u16_word(p.confidence * 1000.0).min(1000),
+                    addr::ANGLE => map::angle_word(p.angle_deg),
+                    addr::X => map::mm_word(p.x_mm),
+                    addr::Y => map::mm_word(p.y_mm),
+                    addr::CONFIDENCE => map::confidence_word(p.confidence),
                     addr::PART_INDEX => q.index,
                     addr::PART_COUNT => q.count,
-                    a if two(a, addr::ANGLE_F32) => float(angle_f32(p.angle_deg), a > addr::ANGLE_F32),
+                    a if two(a, addr::ANGLE_F32) => float(map::angle_f32(p.angle_deg), a > addr::ANGLE_F32),
                     a if two(a, addr::X_F32) => float(p.x_mm as f32, a > addr::X_F32),
                     a if two(a, addr::Y_F32) => float(p.y_mm as f32, a > addr::Y_F32),
-                    addr::PROCESSING_TIME => u16_word(q.processing_ms * 10.0),
+                    addr::PROCESSING_TIME => map::tenth_ms_word(q.processing_ms),
                     a if two(a, addr::RESULT_USER_DATA) => self.split(q.user_data, a > addr::RESULT_USER_DATA),
                     _ => 0,
                 }
@@ -731,20 +717,4 @@ impl AutoMode {
 
 fn no_part(reason: Reason) -> PartResult {
     PartResult { accepted: false, reason, type_id: 0, face: 0, angle_deg: 0.0, x_mm: 0.0, y_mm: 0.0, confidence: 0.0 }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn angle_words_wrap_into_the_signed_range() {
-        assert_eq!(angle_word(0.0), 0);
-        assert_eq!(angle_word(90.0) as i16, 9000);
-        assert_eq!(angle_word(270.0) as i16, -9000);
-        assert_eq!(angle_word(180.0) as i16, -18000);
-        assert_eq!(angle_word(179.996) as i16, -18000);
-        assert_eq!(angle_word(179.99) as i16, 17999);
-        assert_eq!(angle_word(-0.004) as i16, 0);
-    }
 }

@@ -554,9 +554,54 @@ pub fn i16_word(v: f64) -> u16 {
     (v.round().clamp(-32768.0, 32767.0) as i16) as u16
 }
 
+/// A position in millimetres to X or Y: 0.1 mm, saturated.
+pub fn mm_word(mm: f64) -> u16 {
+    i16_word(mm * 10.0)
+}
+
+/// A confidence (0..1) to CONFIDENCE: 0.001, 0..1000.
+pub fn confidence_word(c: f64) -> u16 {
+    u16_word(c.clamp(0.0, 1.0) * 1000.0)
+}
+
+/// Milliseconds to PROCESSING_TIME: 0.1 ms, saturated.
+pub fn tenth_ms_word(ms: f64) -> u16 {
+    u16_word(ms * 10.0)
+}
+
+/// Angle in degrees to the ANGLE register: 0.01 deg, -18000..17999.
+pub fn angle_word(deg: f64) -> u16 {
+    let mut a = (deg + 180.0).rem_euclid(360.0) - 180.0;
+    if (a * 100.0).round() >= 18000.0 {
+        a -= 360.0;
+    }
+    i16_word(a * 100.0)
+}
+
+/// Angle in degrees as ANGLE_F32 holds it: -180 <= a < 180, single precision.
+pub fn angle_f32(deg: f64) -> f32 {
+    ((deg + 180.0).rem_euclid(360.0) - 180.0) as f32
+}
+
+/// The degrees an ANGLE word holds (what a PLC reads from [`angle_word`]).
+pub fn angle_of_word(w: u16) -> f64 {
+    w as i16 as f64 / 100.0
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn angle_words_wrap_into_the_signed_range() {
+        assert_eq!(angle_word(0.0), 0);
+        assert_eq!(angle_word(90.0) as i16, 9000);
+        assert_eq!(angle_word(270.0) as i16, -9000);
+        assert_eq!(angle_word(180.0) as i16, -18000);
+        assert_eq!(angle_word(179.996) as i16, -18000);
+        assert_eq!(angle_word(179.99) as i16, 17999);
+        assert_eq!(angle_word(-0.004) as i16, 0);
+    }
 
     #[test]
     fn the_table_is_ordered_unique_and_inside_the_map() {

@@ -155,7 +155,7 @@ impl Acquisition {
                         2 => Some("down"),
                         _ => None,
                     },
-                    angle_deg: crate::handshake::angle_f32(r.part.angle_deg),
+                    angle_deg: crate::registers::angle_f32(r.part.angle_deg),
                     x_mm: r.part.x_mm as f32,
                     y_mm: r.part.y_mm as f32,
                     x_px: p.map_or(f64::NAN, |p| p.x),

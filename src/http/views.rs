@@ -6,7 +6,7 @@ use serde::Serialize;
 
 use crate::appliance::CameraHandle;
 use crate::appliance::history::Entry;
-use crate::handshake::{Queued, WordOrder, angle_word};
+use crate::handshake::{Queued, WordOrder};
 use crate::registers::{self as map, Kind, MAP, code_word, u32_from_words};
 use crate::vision::decide::Measure;
 use crate::vision::{FrameEstimate, Reason};
@@ -393,7 +393,7 @@ pub fn part_views(results: &[Queued], estimate: Option<&FrameEstimate>) -> Vec<P
                 type_id: r.part.type_id,
                 type_name: p.and_then(|p| p.type_name.clone()),
                 face: p.and_then(|p| p.face.map(|f| f.as_str())),
-                angle_deg: angle_word(r.part.angle_deg) as i16 as f64 / 100.0,
+                angle_deg: map::angle_of_word(map::angle_word(r.part.angle_deg)),
                 x_mm: r.part.x_mm as f32 as f64,
                 y_mm: r.part.y_mm as f32 as f64,
                 confidence: r.part.confidence,

@@ -10,8 +10,8 @@ pub mod link;
 use std::collections::VecDeque;
 use std::time::Duration;
 
-use crate::handshake::{PartResult, Queued, WordOrder, angle_word};
-use crate::registers::{RobotView, i16_word, robot_bits, u16_word, u32_words};
+use crate::handshake::{PartResult, Queued, WordOrder};
+use crate::registers::{RobotView, angle_word, confidence_word, mm_word, robot_bits, u32_words};
 
 /// Robot input words (offsets from `input_words_at`), written by the appliance.
 pub mod input {
@@ -85,8 +85,8 @@ pub fn markdown() -> String {
 /// part (sent only with `send = "all"`) carries TYPE_ID 0 and CONFIDENCE 0: never a pick
 /// instruction.
 pub fn part_words(p: &PartResult) -> [u16; 6] {
-    let (type_id, conf) = if p.accepted { (p.type_id, u16_word(p.confidence.clamp(0.0, 1.0) * 1000.0)) } else { (0, 0) };
-    [type_id, p.face, angle_word(p.angle_deg), i16_word(p.x_mm * 10.0), i16_word(p.y_mm * 10.0), conf]
+    let (type_id, conf) = if p.accepted { (p.type_id, confidence_word(p.confidence)) } else { (0, 0) };
+    [type_id, p.face, angle_word(p.angle_deg), mm_word(p.x_mm), mm_word(p.y_mm), conf]
 }
 
 /// What the driver must do next.
