@@ -571,7 +571,7 @@ pub fn tenth_ms_word(ms: f64) -> u16 {
 
 /// Angle in degrees to the ANGLE register: 0.01 deg, -18000..17999.
 pub fn angle_word(deg: f64) -> u16 {
-    let mut a = (deg + 180.0).rem_euclid(360.0) - 180.0;
+    let mut a = signed_deg(deg);
     if (a * 100.0).round() >= 18000.0 {
         a -= 360.0;
     }
@@ -580,7 +580,12 @@ pub fn angle_word(deg: f64) -> u16 {
 
 /// Angle in degrees as ANGLE_F32 holds it: -180 <= a < 180, single precision.
 pub fn angle_f32(deg: f64) -> f32 {
-    ((deg + 180.0).rem_euclid(360.0) - 180.0) as f32
+    signed_deg(deg) as f32
+}
+
+/// An angle in degrees as -180 <= a < 180.
+fn signed_deg(deg: f64) -> f64 {
+    (deg + 180.0).rem_euclid(360.0) - 180.0
 }
 
 /// The degrees an ANGLE word holds (what a PLC reads from [`angle_word`]).

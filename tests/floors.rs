@@ -131,17 +131,15 @@ fn imports(mods: &BTreeMap<String, String>) -> BTreeMap<String, BTreeSet<String>
         }
         // `super::` of a file module is its parent; of a `mod.rs`, its parent's parent alike
         // (the module path already names the folder).
-        let parent: Vec<&str> = m.split("::").collect::<Vec<_>>()[..m.matches("::").count()].to_vec();
+        let parent = m.rsplit_once("::").map_or("", |(p, _)| p);
         let inline = inline_modules(&code);
         for (at, h) in heads(&code, "super::") {
             // Inside an inline `mod raw { .. }`, `super::` is this file's own module.
             if inline.iter().any(|r| r.contains(&at)) {
                 continue;
             }
-            let mut p = parent.clone();
-            p.push(&h);
-            let child = p.join("::");
-            deps.insert(if mods.contains_key(&child) { child } else { parent.join("::") });
+            let child = if parent.is_empty() { h } else { format!("{parent}::{h}") };
+            deps.insert(if mods.contains_key(&child) { child } else { parent.to_string() });
         }
         deps.remove(m);
         out.insert(m.clone(), deps);
