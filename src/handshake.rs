@@ -393,7 +393,7 @@ impl Handshake {
                             2
                         }
                     }
-                    addr::REASON => p.reason.code(),
+                    addr::REASON => map::reason_code(p.reason),
                     addr::TYPE_ID => p.type_id,
                     addr::FACE => p.face,
                     addr::ANGLE => map::angle_word(p.angle_deg),

@@ -521,7 +521,7 @@ pub fn plan_folder(dir: &Path, kb: &KnowledgeBase) -> Result<(Vec<FolderTemplate
             _ => ignored.push(path),
         }
     }
-    found.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.code().cmp(&b.1.code())));
+    found.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.cmp(&b.1)));
     ignored.sort();
     if found.is_empty() {
         return Err(KbError::Catalogue { path: dir.into(), message: "holds no TYPE_up or TYPE_down image".into() });

@@ -1,6 +1,10 @@
 //! The PLC register map: one table, from which the handshake, the Modbus service, the tests and
-//! `register-map.md` are derived. It is pure data at the bottom of the house: everything that
-//! speaks to the PLC stands on it, and it imports nothing of theirs. Addresses are 0-based protocol addresses (PLC tools show 400001 + address).
+//! `register-map.md` are derived. It is pure data near the bottom of the house: everything that
+//! speaks to the PLC stands on it, and it imports nothing of theirs, only the estimator's words
+//! (`Face`, `Reason`), to which it gives their numbers on the wire. Addresses are 0-based
+//! protocol addresses (PLC tools show 400001 + address).
+
+use crate::vision::{Face, Reason};
 
 /// Who may write a register.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -202,6 +206,49 @@ const fn flag(addr: u16, name: &'static str, doc: &'static str) -> Register {
     Register { addr, name, access: ReadWrite, kind: U16, unit: "0/1", allowed: Some(BOOL), range: None, doc, codes: &[] }
 }
 
+/// REASON's value for a reason: the one place its number is written. A PLC program keys on
+/// these numbers: a reason keeps its number for ever, and a new one takes the next.
+pub const fn reason_code(r: Reason) -> u16 {
+    match r {
+        Reason::Ok => 0,
+        Reason::NoPart => 1,
+        Reason::UnknownType => 2,
+        Reason::LowConfidence => 3,
+        Reason::Ambiguous => 4,
+        Reason::Touching => 5,
+        Reason::WrongType => 6,
+        Reason::FrameError => 7,
+        Reason::AtBorder => 8,
+        Reason::Covered => 9,
+        Reason::NoClearance => 10,
+    }
+}
+
+/// FACE's value: 1 up, 2 down, 0 when no face was found.
+pub const fn face_code(f: Option<Face>) -> u16 {
+    match f {
+        None => 0,
+        Some(Face::Up) => 1,
+        Some(Face::Down) => 2,
+    }
+}
+
+/// REASON's codes and words, in code order (the words are the estimator's, as the page shows them).
+const REASON_CODES: [(u16, &str); Reason::ALL.len()] = {
+    let mut out = [(0, ""); Reason::ALL.len()];
+    let mut i = 0;
+    while i < Reason::ALL.len() {
+        let r = Reason::ALL[i];
+        out[reason_code(r) as usize] = (reason_code(r), r.as_str());
+        i += 1;
+    }
+    out
+};
+
+/// FACE's codes and words.
+const FACE_CODES: [(u16, &str); 3] =
+    [(face_code(None), "unknown"), (face_code(Some(Face::Up)), Face::Up.as_str()), (face_code(Some(Face::Down)), Face::Down.as_str())];
+
 /// Every defined register, in address order. Addresses not listed below SIZE are reserved:
 /// they read as 0 and refuse writes.
 pub const MAP: &[Register] = &[
@@ -350,26 +397,9 @@ pub const MAP: &[Register] = &[
         &[(0, "none"), (1, "accept"), (2, "reject")],
         "0 when the queue is empty: the whole result block reads 0.",
     ),
-    coded(
-        addr::REASON,
-        "REASON",
-        &[
-            (0, "ok"),
-            (1, "no part"),
-            (2, "unknown type"),
-            (3, "low confidence"),
-            (4, "ambiguous"),
-            (5, "touching/overlapping"),
-            (6, "wrong type"),
-            (7, "frame error"),
-            (8, "at the image border"),
-            (9, "covered"),
-            (10, "no clearance"),
-        ],
-        "",
-    ),
+    coded(addr::REASON, "REASON", &REASON_CODES, ""),
     reg(addr::TYPE_ID, "TYPE_ID", ReadOnly, U16, "type id", "0 when no type."),
-    coded(addr::FACE, "FACE", &[(0, "unknown"), (1, "up"), (2, "down")], ""),
+    coded(addr::FACE, "FACE", &FACE_CODES, ""),
     reg(addr::ANGLE, "ANGLE", ReadOnly, I16, "0.01 deg", "-18000..17999, robot frame."),
     reg(addr::X, "X", ReadOnly, I16, "0.1 mm", "Robot frame (saturates at -32768/32767; the float copy is exact)."),
     reg(addr::Y, "Y", ReadOnly, I16, "0.1 mm", "Robot frame (saturates at -32768/32767; the float copy is exact)."),
@@ -586,6 +616,45 @@ pub fn angle_f32(deg: f64) -> f32 {
 /// An angle in degrees as -180 <= a < 180.
 fn signed_deg(deg: f64) -> f64 {
     (deg + 180.0).rem_euclid(360.0) - 180.0
+}
+
+/// The millimetres an X or Y word holds (what a PLC reads from [`mm_word`]).
+pub fn mm_of_word(w: u16) -> f64 {
+    w as i16 as f64 / 10.0
+}
+
+/// The confidence a CONFIDENCE word holds (what a PLC reads from [`confidence_word`]).
+pub fn confidence_of_word(w: u16) -> f64 {
+    w as f64 / 1000.0
+}
+
+/// The milliseconds a PROCESSING_TIME word holds.
+pub fn ms_of_word(w: u16) -> f64 {
+    w as f64 / 10.0
+}
+
+/// The face a FACE word names (None for 0 or a value that is no face).
+pub fn face_of_code(w: u16) -> Option<Face> {
+    [Face::Up, Face::Down].into_iter().find(|f| face_code(Some(*f)) == w)
+}
+
+/// A register's value as people read it, in its unit: scaled values, signed words, floats,
+/// bits as a binary string. `words` are the register's words (the second only read for a
+/// two-word value); `order` is the camera's word order for those.
+pub fn value_text(r: &Register, words: [u16; 2], order: WordOrder) -> String {
+    let w = words[0];
+    let joined = u32_from_words(words, order);
+    match (r.kind, r.unit) {
+        (Kind::I16, "0.01 deg") => format!("{:.2} deg", angle_of_word(w)),
+        (Kind::I16, "0.1 mm") => format!("{:.1} mm", mm_of_word(w)),
+        (Kind::I16, _) => (w as i16).to_string(),
+        (Kind::U16, "0.1 ms") => format!("{:.1} ms", ms_of_word(w)),
+        (Kind::U16, "0.001") => format!("{:.3}", confidence_of_word(w)),
+        (Kind::Bits, _) => format!("{w:08b}"),
+        (Kind::F32, unit) => format!("{:.3} {unit}", f32::from_bits(joined)),
+        (Kind::U32, _) => joined.to_string(),
+        _ => w.to_string(),
+    }
 }
 
 /// The degrees an ANGLE word holds (what a PLC reads from [`angle_word`]).

@@ -6,7 +6,7 @@ mod common;
 use std::time::Duration;
 
 use lfi_bridge::handshake::{Command, Fault, Handshake, JobOutcome, Outcome, PartResult, PickingOrder, Settings, WordOrder, job_status};
-use lfi_bridge::registers::{addr, error_code, status};
+use lfi_bridge::registers::{self as map, addr, error_code, status};
 use lfi_bridge::vision::Reason;
 
 fn hs(depth: usize) -> Handshake {
@@ -146,7 +146,7 @@ fn a_frame_without_parts_queues_one_no_part_result() {
     let id = trigger(&mut h, 0).unwrap();
     h.complete(id, Outcome::Parts { parts: vec![], processing_ms: 3.0 }, ms(5));
     assert_eq!(h.word(addr::DECISION), 2);
-    assert_eq!(h.word(addr::REASON), Reason::NoPart.code());
+    assert_eq!(h.word(addr::REASON), map::reason_code(Reason::NoPart));
     assert_eq!((h.word(addr::PART_INDEX), h.word(addr::PART_COUNT)), (0, 0));
 }
 
@@ -196,7 +196,7 @@ fn a_camera_fault_sets_error_queues_a_frame_error_and_clear_error_clears_it() {
     h.complete(id, Outcome::Failed { fault: Fault::Frame }, ms(3));
     assert!(h.word(addr::STATUS) & status::ERROR != 0);
     assert_eq!(h.word(addr::ERROR_CODE), error_code::FRAME);
-    assert_eq!((h.word(addr::DECISION), h.word(addr::REASON)), (2, Reason::FrameError.code()));
+    assert_eq!((h.word(addr::DECISION), h.word(addr::REASON)), (2, map::reason_code(Reason::FrameError)));
     h.write(addr::CLEAR_ERROR, 1, ms(4));
     assert_eq!(h.word(addr::STATUS) & status::ERROR, 0);
     assert_eq!(h.word(addr::ERROR_CODE), 0);
@@ -246,7 +246,7 @@ fn expected_type_turns_other_types_into_wrong_type_rejects() {
     h.complete(id, Outcome::Parts { parts: vec![part(2, 1.0), part(3, 2.0)], processing_ms: 1.0 }, ms(1));
     assert_eq!((h.word(addr::DECISION), h.word(addr::REASON)), (1, 0));
     h.write(addr::RESULT_ACK, 1, ms(2));
-    assert_eq!((h.word(addr::DECISION), h.word(addr::REASON), h.word(addr::TYPE_ID)), (2, Reason::WrongType.code(), 3));
+    assert_eq!((h.word(addr::DECISION), h.word(addr::REASON), h.word(addr::TYPE_ID)), (2, map::reason_code(Reason::WrongType), 3));
 }
 
 #[test]
@@ -429,7 +429,7 @@ fn user_data_is_latched_at_the_trigger_edge_and_comes_back_with_every_result_of_
     }
     let id = trigger(&mut h, 5).unwrap();
     h.complete(id, Outcome::Failed { fault: Fault::Camera }, ms(6));
-    assert_eq!((h.word(addr::REASON), h.read(219, 2)), (Reason::FrameError.code(), vec![0x0009, 0x9999]), "frame errors too");
+    assert_eq!((h.word(addr::REASON), h.read(219, 2)), (map::reason_code(Reason::FrameError), vec![0x0009, 0x9999]), "frame errors too");
     assert_eq!(h.read(219, 2), h.read(addr::USER_DATA, 2));
 }
 

@@ -12,7 +12,7 @@ use std::time::Duration;
 use common::appliance::{config, cycle, plc, start, write};
 use common::fanuc::Cell;
 use common::http::http;
-use lfi_bridge::registers::addr;
+use lfi_bridge::registers::{self as map, addr};
 use lfi_bridge::vision::Reason;
 
 const EXPECTED_TYPE: u16 = 2;
@@ -94,7 +94,8 @@ async fn the_plc_the_robot_the_page_the_counters_and_the_log_agree_on_every_part
             tokio::time::sleep(Duration::from_millis(5)).await;
         };
         for p in parts {
-            let reason = Reason::ALL.iter().find(|r| r.as_str() == p["reason"]).expect("a known reason").code();
+            let reason = Reason::ALL.iter().find(|r| r.as_str() == p["reason"]).expect("a known reason");
+            let reason = map::reason_code(*reason);
             let tenth = |k: &str| (p[k].as_f64().unwrap() * 10.0).round() as i32;
             let key = (p["acq_id"].as_u64().unwrap() as u16, p["index"].as_u64().unwrap() as u16);
             let detail = p["detail"].as_str().unwrap();
@@ -107,7 +108,7 @@ async fn the_plc_the_robot_the_page_the_counters_and_the_log_agree_on_every_part
     }
 
     let accepted: Vec<&Row> = plc_rows.iter().filter(|r| r.2).collect();
-    let wrong_type = plc_rows.iter().filter(|r| r.3 == Reason::WrongType.code()).count();
+    let wrong_type = plc_rows.iter().filter(|r| r.3 == map::reason_code(Reason::WrongType)).count();
     assert!(accepted.len() >= 3 && wrong_type >= 3, "the frames must test the rule: {} accepted, {wrong_type} wrong type", accepted.len());
     assert!(accepted.iter().all(|r| plc_types[&(r.0, r.1)] == EXPECTED_TYPE), "only the expected type is accepted");
     assert_eq!(page_rows, plc_rows, "the page shows what the PLC got");
@@ -146,7 +147,7 @@ async fn the_plc_the_robot_the_page_the_counters_and_the_log_agree_on_every_part
     };
     assert_eq!(metric("lfi_parts_accepted_total{") as usize, accepted.len());
     for r in Reason::ALL.iter().skip(1) {
-        let plc = plc_rows.iter().filter(|row| !row.2 && row.3 == r.code()).count();
+        let plc = plc_rows.iter().filter(|row| !row.2 && row.3 == map::reason_code(*r)).count();
         assert_eq!(
             metric(&format!("lfi_parts_rejected_total{{camera=\"camera1\",unit_id=\"1\",reason=\"{}\"}}", r.as_str())) as usize,
             plc,
@@ -176,7 +177,7 @@ async fn the_plc_the_robot_the_page_the_counters_and_the_log_agree_on_every_part
         let name = page_types[&(acq, index)].1.clone().unwrap_or_else(|| "?".into());
         assert!(line.contains(&format!(" {name} ")), "part {index} of acquisition {acq} logged under another name: {line}");
         let (x, y) = millimetres(line);
-        logged.push((acq, index, accepted, reason.code(), x, y));
+        logged.push((acq, index, accepted, map::reason_code(reason), x, y));
     }
     let plc_parts: Vec<Row> = plc_rows.iter().filter(|r| r.1 > 0).copied().collect();
     assert_eq!(logged.len(), plc_parts.len(), "one log line per part");

@@ -37,13 +37,22 @@ fn register_map_md_is_generated_from_the_table() {
 /// no clearance, the debris count; MAP_VERSION 3: READY in ERROR, USER_DATA, BOOT_ID).
 #[test]
 fn the_map_documents_every_reject_reason_and_the_debris_count() {
-    // The REASON codes are the estimator's reasons, word for word (the page shows these words).
+    // The REASON codes are the estimator's reasons, word for word (the page shows these words),
+    // and their numbers are the ones PLC programs were written against: never renumbered.
+    use lfi_bridge::vision::{Face, Reason};
     let reason = map::lookup(addr::REASON).unwrap();
-    let words: Vec<(u16, &str)> = lfi_bridge::vision::Reason::ALL.iter().map(|r| (r.code(), r.as_str())).collect();
-    assert_eq!(reason.codes.to_vec(), words);
+    let words: Vec<(u16, &str)> = Reason::ALL.iter().map(|r| (map::reason_code(*r), r.as_str())).collect();
+    let mut sorted = words.clone();
+    sorted.sort();
+    assert_eq!(reason.codes.to_vec(), sorted);
+    let numbers: Vec<(u16, Reason)> = Reason::ALL.iter().map(|r| (map::reason_code(*r), *r)).collect();
+    use Reason::*;
+    let on_the_wire = [Ok, NoPart, UnknownType, LowConfidence, Ambiguous, Touching, WrongType, FrameError, AtBorder, Covered, NoClearance];
+    assert_eq!(numbers, on_the_wire.iter().enumerate().map(|(i, r)| (i as u16, *r)).collect::<Vec<_>>());
     let face = map::lookup(addr::FACE).unwrap();
-    for f in [lfi_bridge::vision::Face::Up, lfi_bridge::vision::Face::Down] {
-        assert_eq!(map::code_word(face, f.code()), Some(f.as_str()));
+    assert_eq!(face.codes.to_vec(), vec![(0, "unknown"), (1, "up"), (2, "down")]);
+    for f in [Face::Up, Face::Down] {
+        assert_eq!(map::code_word(face, map::face_code(Some(f))), Some(f.as_str()));
     }
     assert_eq!(map::MAP_VERSION, 4);
     assert_eq!(map::lookup(119).unwrap().name, "DEBRIS_COUNT");

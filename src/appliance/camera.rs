@@ -150,11 +150,7 @@ impl Acquisition {
                     part_count: r.count,
                     type_id: r.part.type_id,
                     type_name: p.and_then(|p| p.type_name.clone()),
-                    face: match r.part.face {
-                        1 => Some("up"),
-                        2 => Some("down"),
-                        _ => None,
-                    },
+                    face: crate::registers::face_of_code(r.part.face).map(|f| f.as_str()),
                     angle_deg: crate::registers::angle_f32(r.part.angle_deg),
                     x_mm: r.part.x_mm as f32,
                     y_mm: r.part.y_mm as f32,
@@ -162,8 +158,8 @@ impl Acquisition {
                     y_px: p.map_or(f64::NAN, |p| p.y),
                     decision: if r.part.accepted { "accept" } else { "reject" },
                     reason: r.part.reason.as_str(),
-                    reason_code: r.part.reason.code(),
-                    confidence: (r.part.confidence * 1000.0).round().clamp(0.0, 1000.0) / 1000.0,
+                    reason_code: crate::registers::reason_code(r.part.reason),
+                    confidence: crate::registers::confidence_of_word(crate::registers::confidence_word(r.part.confidence)),
                 }
             })
             .collect();
@@ -481,7 +477,7 @@ impl Worker {
             accepted: p.accepted,
             reason: p.reason,
             type_id: p.type_id,
-            face: p.face.map(|f| f.code()).unwrap_or(0),
+            face: crate::registers::face_code(p.face),
             angle_deg: a,
             x_mm: x,
             y_mm: y,
@@ -512,7 +508,7 @@ impl Worker {
             if r.part.accepted {
                 live.accepted += 1;
             } else {
-                live.rejected[r.part.reason.code() as usize] += 1;
+                live.rejected[r.part.reason.index()] += 1;
             }
         }
         live.cycle_ms.push_back(cycle_ms);

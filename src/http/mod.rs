@@ -360,7 +360,7 @@ async fn metrics(State(state): State<AppState>) -> Response {
                 }
                 "lfi_parts_rejected_total" => {
                     for r in Reason::ALL.iter().skip(1) {
-                        let _ = writeln!(m, "{name}{{{l},reason=\"{}\"}} {}", r.as_str(), live.rejected[r.code() as usize]);
+                        let _ = writeln!(m, "{name}{{{l},reason=\"{}\"}} {}", r.as_str(), live.rejected[r.index()]);
                     }
                 }
                 _ => {

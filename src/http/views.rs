@@ -7,7 +7,7 @@ use serde::Serialize;
 use crate::appliance::CameraHandle;
 use crate::appliance::history::Entry;
 use crate::handshake::{Queued, WordOrder};
-use crate::registers::{self as map, Kind, MAP, code_word, u32_from_words};
+use crate::registers::{self as map, MAP, code_word};
 use crate::vision::decide::Measure;
 use crate::vision::{FrameEstimate, Reason};
 
@@ -239,19 +239,8 @@ pub fn decode(words: &[u16], order: WordOrder, type_name: impl Fn(u16) -> Option
         .map(|r| {
             let a = r.addr as usize;
             let raw: Vec<u16> = words[a..a + r.kind.words() as usize].to_vec();
-            let joined = u32_from_words([raw[0], raw.get(1).copied().unwrap_or(0)], order);
             let w = raw[0];
-            let value = match (r.kind, r.unit) {
-                (Kind::I16, "0.01 deg") => format!("{:.2} deg", w as i16 as f64 / 100.0),
-                (Kind::I16, "0.1 mm") => format!("{:.1} mm", w as i16 as f64 / 10.0),
-                (Kind::I16, _) => (w as i16).to_string(),
-                (Kind::U16, "0.1 ms") => format!("{:.1} ms", w as f64 / 10.0),
-                (Kind::U16, "0.001") => format!("{:.3}", w as f64 / 1000.0),
-                (Kind::Bits, _) => format!("{w:08b}"),
-                (Kind::F32, unit) => format!("{:.3} {unit}", f32::from_bits(joined)),
-                (Kind::U32, _) => joined.to_string(),
-                _ => w.to_string(),
-            };
+            let value = map::value_text(r, [w, raw.get(1).copied().unwrap_or(0)], order);
             let word = match r.addr {
                 map::addr::STATUS => Some(set_bits(w, &map::status::NAMES)),
                 map::addr::ROBOT_STATUS => Some(set_bits(w, &map::robot_status::NAMES)),
@@ -346,7 +335,7 @@ pub fn camera_view(c: &CameraHandle) -> CameraView {
         frames: live.frames,
         frame_errors: live.frame_errors,
         accepted: live.accepted,
-        rejected: Reason::ALL.iter().skip(1).map(|r| (r.as_str().to_string(), live.rejected[r.code() as usize])).collect(),
+        rejected: Reason::ALL.iter().skip(1).map(|r| (r.as_str().to_string(), live.rejected[r.index()])).collect(),
         cycle_median_ms: nan_to_zero(crate::eval::percentile(&cycles, 0.5)),
         cycle_p95_ms: p95,
         histogram,
@@ -389,7 +378,7 @@ pub fn part_views(results: &[Queued], estimate: Option<&FrameEstimate>) -> Vec<P
                 accepted: r.part.accepted,
                 decision: code_word(decision, if r.part.accepted { 1 } else { 2 }).unwrap_or("?"),
                 reason: r.part.reason.as_str(),
-                reason_code: r.part.reason.code(),
+                reason_code: crate::registers::reason_code(r.part.reason),
                 type_id: r.part.type_id,
                 type_name: p.and_then(|p| p.type_name.clone()),
                 face: p.and_then(|p| p.face.map(|f| f.as_str())),

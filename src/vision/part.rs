@@ -4,25 +4,18 @@
 /// Which side of the part faces the camera.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Face {
-    /// The face enrolled as "up" (FACE 1).
+    /// The face enrolled as "up".
     Up,
-    /// The other face (FACE 2).
+    /// The other face.
     Down,
 }
 
 impl Face {
     /// "up" or "down", as the KB and the log spell it.
-    pub fn as_str(self) -> &'static str {
+    pub const fn as_str(self) -> &'static str {
         match self {
             Face::Up => "up",
             Face::Down => "down",
-        }
-    }
-    /// Register encoding: 1 up, 2 down (0 is "unknown").
-    pub fn code(self) -> u16 {
-        match self {
-            Face::Up => 1,
-            Face::Down => 2,
         }
     }
 }
@@ -44,26 +37,27 @@ impl std::fmt::Display for Face {
     }
 }
 
-/// Why a part was not accepted. The numeric codes are the register map's REASON values.
+/// Why a part was not accepted. Its number on the wire (REASON) is `registers`' business, not
+/// the estimator's.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Reason {
-    /// Accepted (0).
+    /// Accepted.
     Ok,
-    /// No part in the frame: the one result of an empty belt (1).
+    /// No part in the frame: the one result of an empty belt.
     NoPart,
-    /// No template fits well enough (2).
+    /// No template fits well enough.
     UnknownType,
-    /// The line features agree less than the threshold (3).
+    /// The line features agree less than the threshold.
     LowConfidence,
-    /// Another type or face fits nearly as well (4).
+    /// Another type or face fits nearly as well.
     Ambiguous,
-    /// Touching or overlapping parts that cannot be told apart (5).
+    /// Touching or overlapping parts that cannot be told apart.
     Touching,
-    /// Not the EXPECTED_TYPE the PLC asked for (6).
+    /// Not the EXPECTED_TYPE the PLC asked for.
     WrongType,
-    /// No usable frame: the result of a camera or frame fault (7).
+    /// No usable frame: the result of a camera or frame fault.
     FrameError,
-    /// Cut by the frame's edge (8).
+    /// Cut by the frame's edge.
     AtBorder,
     /// Another part lies partly on this one: grasping it would drag the one on top.
     Covered,
@@ -72,7 +66,7 @@ pub enum Reason {
 }
 
 impl Reason {
-    /// Every reason, in code order.
+    /// Every reason, each once (counters are indexed by [`Reason::index`]).
     pub const ALL: [Reason; 11] = [
         Reason::Ok,
         Reason::NoPart,
@@ -86,12 +80,12 @@ impl Reason {
         Reason::Covered,
         Reason::NoClearance,
     ];
-    /// The REASON register's value.
-    pub fn code(self) -> u16 {
-        self as u16
+    /// Its position in [`Reason::ALL`]: a counter's slot.
+    pub fn index(self) -> usize {
+        self as usize
     }
     /// The reason as the log and the page write it.
-    pub fn as_str(self) -> &'static str {
+    pub const fn as_str(self) -> &'static str {
         match self {
             Reason::Ok => "ok",
             Reason::NoPart => "no part",
