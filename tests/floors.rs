@@ -138,8 +138,15 @@ fn imports(mods: &BTreeMap<String, String>) -> BTreeMap<String, BTreeSet<String>
             if inline.iter().any(|r| r.contains(&at)) {
                 continue;
             }
-            let child = if parent.is_empty() { h } else { format!("{parent}::{h}") };
-            deps.insert(if mods.contains_key(&child) { child } else { parent.to_string() });
+            // `super::super::x` (a folder module's file) climbs one module more per `super`.
+            let (mut base, mut h, mut from) = (parent, h, at);
+            while h == "super" {
+                base = base.rsplit_once("::").map_or("", |(p, _)| p);
+                from += "super::".len();
+                h = code[from..].chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+            }
+            let child = if base.is_empty() { h } else { format!("{base}::{h}") };
+            deps.insert(if mods.contains_key(&child) { child } else { base.to_string() });
         }
         deps.remove(m);
         out.insert(m.clone(), deps);

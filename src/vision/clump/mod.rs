@@ -1,0 +1,171 @@
+//! Stage 5b: regions the silhouette alone cannot explain: touching and overlapping parts, and a
+//! single part whose outline the coarse stage got partly wrong (thin arms closed over, glare).
+//!
+//! A region's outline is the union of pieces of its parts' outlines. Each template votes for its
+//! own poses from those pieces (a generalised Hough transform: a pair of outline points, one on
+//! the region and one on the template, with their normals, fixes the rotation and the centroid),
+//! so a part is found from the part of its outline that shows, wherever the rest is. Each
+//! hypothesis is then refined by the same point-to-line ICP as a separate part and *verified
+//! against the image*: every point of the template's outline at that pose must be explained,
+//! either by the region's outline or by an edge across the outline's normal inside the region
+//! (where a part lies on another, or where the coarse outline bridged a gap). Which of two
+//! overlapping parts lies on top follows from the same evidence: the upper part's outline runs on
+//! across the lower one, the lower one's outline disappears under the upper.
+//!
+//! The decisions (accept, `covered`, `touching/overlapping`) are the estimator's; this module
+//! only finds and measures.
+
+mod layer;
+mod leftover;
+mod mask;
+mod verify;
+mod vote;
+
+use opencv::core::{self, Mat};
+
+use super::detect::{Blob, Coarse};
+use super::geometry::{Pt, Similarity};
+use super::register::Registration;
+use super::shape::{MODEL_VOTE_STRIDE, oriented_points};
+use super::template::Library;
+use verify::{Look, Probe};
+use vote::Vote;
+
+/// What the region offers as evidence.
+pub struct Region<'a> {
+    /// The frame's coarse stage (decimated, blurred frame for the edge tests).
+    pub coarse: &'a Coarse,
+    /// The region.
+    pub blob: &'a Blob,
+    /// The region's refined outline, frame pixels.
+    pub outline: &'a [Pt],
+    /// Frame noise, gray levels.
+    pub noise: f64,
+    /// Part-to-belt contrast along the region's outline, gray levels.
+    pub contrast: f64,
+}
+
+/// A part found in a region.
+#[derive(Debug, Clone)]
+pub struct Found {
+    /// Index of the template in the library.
+    pub entry: usize,
+    /// The registration at its pose.
+    pub reg: Registration,
+    /// The outline tolerance used, template pixels.
+    pub tolerance: f64,
+    /// Length fraction of the template's outline explained by the image at the pose.
+    pub support: f64,
+    /// Index (into [`Explained::parts`]) of a part found lying on this one.
+    pub under: Option<usize>,
+    /// Overlaps another part found here, and the image cannot tell which lies on top.
+    pub order_unclear: bool,
+    /// Another template explaining the same material nearly as well: (entry, its registration,
+    /// support).
+    pub rival: Option<(usize, Registration, f64)>,
+    /// Verification points.
+    points: Vec<Probe>,
+}
+
+/// Everything found in a region.
+#[derive(Debug, Clone, Default)]
+pub struct Explained {
+    /// The parts found, best supported first.
+    pub parts: Vec<Found>,
+    /// Material of the region that no found part explains: (area in frame pixels, centroid).
+    pub leftover: Vec<(f64, Pt)>,
+    /// Wall time of the vote, milliseconds (the rest of the region's time is verification).
+    pub vote_ms: f64,
+}
+
+/// Least support for a hypothesis to stand for a physical part at all.
+pub const MIN_SUPPORT: f64 = 0.7;
+
+/// Finds and verifies the parts in a region. `tolerance(entry)` is the outline tolerance of that
+/// template at this frame's noise, as the single-part path uses it.
+pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> f64, min_leftover: f64) -> Explained {
+    let scene = oriented_points(region.outline);
+    if scene.len() < 8 {
+        return Explained::default();
+    }
+    let mut vote = Vote::new(lib, region.outline);
+    let hyps = vote.hypotheses(&scene, 1.0);
+    let look = Look::new(lib, region, &tolerance);
+    let (mut found, mut masks) = (Vec::new(), Vec::new());
+    take(&look, region, hyps, &mut found, &mut masks);
+    // A part whose outline shows less than its neighbour's may not make the first vote's
+    // strongest peaks at all: the neighbour's outline votes for that neighbour again from every
+    // face and type alike. What is left votes once more on its own, while it is long enough to
+    // be most of a part's outline. Then, should some still be left, at a scale 5 % either side:
+    // the vote at the template's scale smears the centroid's votes of a part more than about 4 %
+    // larger or smaller (a 370 px radius moves 15 px, over a cell) and loses its peak, where the
+    // registration would pull the scale in.
+    let shortest = lib.entries.iter().map(|e| e.shape.vote.len() * MODEL_VOTE_STRIDE).min().unwrap_or(usize::MAX);
+    for scale in [1.0, 0.95, 1.05] {
+        if scale == 1.0 && found.is_empty() {
+            continue; // the same vote again
+        }
+        let rest = mask::unexplained(&scene, &found, &masks, region);
+        if 2 * rest.len() < shortest {
+            break;
+        }
+        let hyps = vote.hypotheses(&rest, scale);
+        take(&look, region, hyps, &mut found, &mut masks);
+    }
+    let (mut found, masks, keep) = one_per_part(lib, found, masks);
+    layer::order(lib, region, &look.edge, &mut found, &masks, &keep);
+    let kept: Vec<&Mat> = keep.iter().map(|&i| &masks[i]).collect();
+    let leftover = leftover::pieces(region, &kept, min_leftover).unwrap_or_default();
+    Explained { parts: renumbered(&found, &keep), leftover, vote_ms: vote.ms }
+}
+
+/// Looks at each hypothesis in turn: a part found joins `found`, and its filled outline at its
+/// pose `masks`, made once (the second vote's look at what is left and the overlap tests read
+/// the same masks).
+fn take(look: &Look<'_>, region: &Region<'_>, hyps: Vec<(usize, Similarity, u32)>, found: &mut Vec<Found>, masks: &mut Vec<Mat>) {
+    for (ei, init, _) in hyps {
+        if let Some(part) = look.at(found, ei, init) {
+            masks.push(mask::mask_of(look.lib, &part, region.blob, region.coarse.factor).unwrap_or_default());
+            found.push(part);
+        }
+    }
+}
+
+/// One physical part, several explanations (the same template from two peaks, another face or
+/// type): the best stays, the runner-up of a different type or face is its rival. Returns every
+/// explanation and its mask, best supported first, and the indices of those kept.
+fn one_per_part(lib: &Library, found: Vec<Found>, masks: Vec<Mat>) -> (Vec<Found>, Vec<Mat>, Vec<usize>) {
+    let mut by_support: Vec<(Found, Mat)> = found.into_iter().zip(masks).collect();
+    by_support.sort_by(|a, b| b.0.support.total_cmp(&a.0.support));
+    let (mut found, masks): (Vec<Found>, Vec<Mat>) = by_support.into_iter().unzip();
+    let areas: Vec<f64> = masks.iter().map(|m| core::count_non_zero(m).unwrap_or(0) as f64).collect();
+    let mut keep: Vec<usize> = Vec::new();
+    for i in 0..found.len() {
+        let same = keep.iter().copied().find(|&k| {
+            let inter = mask::overlap(&masks[i], &masks[k]);
+            inter > 0.5 * areas[i].min(areas[k]).max(1.0)
+        });
+        match same {
+            None => keep.push(i),
+            Some(k) => {
+                let (a, b) = (&lib.entries[found[k].entry].template, &lib.entries[found[i].entry].template);
+                if found[k].rival.is_none() && (a.type_name != b.type_name || a.face != b.face) {
+                    found[k].rival = Some((found[i].entry, found[i].reg, found[i].support));
+                }
+            }
+        }
+    }
+    (found, masks, keep)
+}
+
+/// The kept parts, with `under` renumbered from all explanations to the kept ones.
+fn renumbered(found: &[Found], keep: &[usize]) -> Vec<Found> {
+    let index_of: Vec<Option<usize>> = (0..found.len()).map(|i| keep.iter().position(|&k| k == i)).collect();
+    keep.iter()
+        .map(|&i| {
+            let mut f = found[i].clone();
+            f.under = f.under.and_then(|k| index_of[k]);
+            f
+        })
+        .collect()
+}

@@ -1,0 +1,222 @@
+//! The generalised Hough vote: each template votes for its own poses from the region's outline
+//! pieces, into one accumulator reused by every template.
+
+use super::super::geometry::{Pt, Similarity, bounds};
+use super::super::shape::{FINE, ShapeModel};
+use super::super::template::Library;
+
+/// Rotation bins of the vote accumulator (10 degrees). Each vote rotates by its own pair's angle
+/// (to [`FINE`] steps), so the centroid votes of a true pose agree whatever the bin width: the
+/// bins only keep parts at different angles apart, and a small accumulator stays in cache.
+const ANGLE_BINS: usize = 36;
+/// Centroid cell of the vote accumulator, frame pixels.
+const CELL: f64 = 12.0;
+/// Largest difference of turn (in [`FINE`] steps: 15 degrees) between corresponding points.
+const TURN_TOLERANCE: i32 = 30;
+/// Poses per template kept from the vote.
+const PEAKS_PER_TEMPLATE: usize = 3;
+/// Hypotheses refined and verified per region, best votes first.
+const MAX_HYPOTHESES: usize = 10;
+
+/// The region's vote: one accumulator for every template and every round, and its wall time.
+pub(super) struct Vote<'a> {
+    lib: &'a Library,
+    acc: Accumulator,
+    /// Wall time spent voting so far, milliseconds.
+    pub(super) ms: f64,
+}
+
+impl<'a> Vote<'a> {
+    /// A vote over the bounding box of the region's `outline`.
+    pub(super) fn new(lib: &'a Library, outline: &[Pt]) -> Self {
+        let (lo, hi) = bounds(outline);
+        Self { lib, acc: Accumulator::new(lo, hi), ms: 0.0 }
+    }
+
+    /// Every template's best poses from `scene` (oriented outline points) at `scale`: (entry,
+    /// pose, votes), the [`MAX_HYPOTHESES`] with the most votes as a fraction of the template's
+    /// voting points.
+    pub(super) fn hypotheses(&mut self, scene: &[(Pt, usize, i32)], scale: f64) -> Vec<(usize, Similarity, u32)> {
+        let voting = std::time::Instant::now();
+        let lib = self.lib;
+        let mut hyps: Vec<(usize, Similarity, u32)> = Vec::new();
+        let rot = Rotations::new(scale);
+        for (ei, e) in lib.entries.iter().enumerate() {
+            for (pose, votes) in vote(&mut self.acc, &e.shape, e.template.centroid, scene, &rot) {
+                hyps.push((ei, pose, votes));
+            }
+        }
+        // Stronger evidence first: votes as a fraction of the template's voting points.
+        hyps.sort_by(|a, b| {
+            let fa = a.2 as f64 / lib.entries[a.0].shape.vote.len() as f64;
+            let fb = b.2 as f64 / lib.entries[b.0].shape.vote.len() as f64;
+            fb.total_cmp(&fa)
+        });
+        hyps.truncate(MAX_HYPOTHESES);
+        self.ms += voting.elapsed().as_secs_f64() * 1e3;
+        hyps
+    }
+}
+
+/// The vote accumulator over a region: rotation bins x centroid cells, reused by every
+/// template. Only the cells a template's votes touched are read and cleared again: a pair's
+/// region has some 0.2 M cells, of which its votes touch a fraction.
+struct Accumulator {
+    lo: Pt,
+    nx: usize,
+    ny: usize,
+    /// Per cell: the votes, and the sum of their fine angles relative to their bin's start, in
+    /// one 32-bit word (a cell would need thousands of votes to saturate either).
+    cells: Vec<[u16; 2]>,
+    /// Cells with a vote (to clear).
+    touched: Vec<u32>,
+    /// Cells that reached the candidate floor.
+    tall: Vec<u32>,
+}
+
+impl Accumulator {
+    /// An empty accumulator for centroids in the box `lo`..`hi` (a part's centroid lies within
+    /// its bounding box, which lies within the region's).
+    fn new(lo: Pt, hi: Pt) -> Self {
+        let nx = (((hi.x - lo.x) / CELL).ceil() as usize + 1).max(1);
+        let ny = (((hi.y - lo.y) / CELL).ceil() as usize + 1).max(1);
+        let n = ANGLE_BINS * nx * ny;
+        Self { lo, nx, ny, cells: vec![[0; 2]; n], touched: Vec::new(), tall: Vec::new() }
+    }
+}
+
+/// The vote's rotation table, sine and cosine per [`FINE`] step, scaled to accumulator cells and
+/// by the part's `scale`, so that the inner loop needs no division. Made once per vote of a
+/// region, not per template: with a hundred types its 720 `sin_cos` per template cost 3 % of a
+/// touching pair's time.
+struct Rotations {
+    scale: f64,
+    lut: Vec<(f64, f64)>,
+}
+
+impl Rotations {
+    fn new(scale: f64) -> Self {
+        let fine_step = std::f64::consts::TAU / FINE as f64;
+        let lut = (0..FINE)
+            .map(|b| {
+                let (s, c) = (b as f64 * fine_step).sin_cos();
+                (s * scale / CELL, c * scale / CELL)
+            })
+            .collect();
+        Self { scale, lut }
+    }
+}
+
+/// Generalised Hough vote of one template over the region: its best few poses (at the
+/// rotations' scale) and their votes (3 x 3 x 3 cells around the peak).
+fn vote(acc: &mut Accumulator, model: &ShapeModel, centroid: Pt, scene: &[(Pt, usize, i32)], rot: &Rotations) -> Vec<(Similarity, u32)> {
+    let (lo, nx, ny) = (acc.lo, acc.nx, acc.ny);
+    let plane = nx * ny;
+    let fine_step = std::f64::consts::TAU / FINE as f64;
+    let (lut, scale) = (&rot.lut, rot.scale);
+    let per_bin = FINE / ANGLE_BINS;
+    // Candidate cells: the raw count is at least a twentieth of the model's points.
+    let floor = (model.vote.len() / 20).clamp(3, u16::MAX as usize) as u16;
+    // Each bin's votes, and the sum of their fine angles relative to the bin's start, so that a
+    // peak's angle is the mean of its votes rather than the bin's centre.
+    for &(p, beta, turn) in scene {
+        // Only points where the outlines bend alike can correspond: a fraction of the pairs.
+        let from = model.vote.partition_point(|v| v.2 < turn - TURN_TOLERANCE);
+        let to = model.vote.partition_point(|v| v.2 <= turn + TURN_TOLERANCE);
+        let (px, py) = ((p.x - lo.x) / CELL, (p.y - lo.y) / CELL);
+        let (nxf, nyf) = (nx as f64, ny as f64);
+        for &(d, alpha, _) in &model.vote[from..to] {
+            let fine = if beta >= alpha { beta - alpha } else { beta + FINE - alpha };
+            let b = fine / per_bin;
+            let (s, c) = lut[fine];
+            // The centroid p + rotate_display(d, theta) with the pair's angle, in cells.
+            let ix = px + c * d.x + s * d.y;
+            let iy = py - s * d.x + c * d.y;
+            // Inside the accumulator (compared as floats: a float-to-integer cast costs a dozen
+            // instructions here), truncation is the floor (and needs no libm call).
+            if !(ix >= 0.0 && iy >= 0.0 && ix < nxf && iy < nyf) {
+                continue;
+            }
+            let k = b * plane + iy as usize * nx + ix as usize;
+            let cell = &mut acc.cells[k];
+            cell[0] = cell[0].saturating_add(1);
+            cell[1] = cell[1].saturating_add((fine - b * per_bin) as u16);
+            let v = cell[0];
+            if v == 1 {
+                acc.touched.push(k as u32);
+            }
+            if v == floor {
+                acc.tall.push(k as u32);
+            }
+        }
+    }
+    let cells = &acc.cells;
+    let box_sum = |b: usize, y: usize, x: usize| -> u32 {
+        let mut s = 0u32;
+        for db in [ANGLE_BINS - 1, 0, 1] {
+            let bb = (b + db) % ANGLE_BINS;
+            for yy in y.saturating_sub(1)..=(y + 1).min(ny - 1) {
+                for xx in x.saturating_sub(1)..=(x + 1).min(nx - 1) {
+                    s += cells[bb * plane + yy * nx + xx][0] as u32;
+                }
+            }
+        }
+        s
+    };
+    // In cell order, so that equal sums rank as a scan of the whole accumulator would.
+    acc.tall.sort_unstable();
+    let mut cands: Vec<(u32, usize, usize, usize)> = acc
+        .tall
+        .iter()
+        .map(|&k| {
+            let k = k as usize;
+            let (b, y, x) = (k / plane, (k % plane) / nx, k % nx);
+            (box_sum(b, y, x), b, y, x)
+        })
+        .collect();
+    cands.sort_by_key(|c| std::cmp::Reverse(c.0));
+    let mut peaks: Vec<(u32, usize, usize, usize)> = Vec::new();
+    for c in cands {
+        let near = peaks.iter().any(|p| {
+            let db = (c.1 as isize - p.1 as isize).rem_euclid(ANGLE_BINS as isize);
+            let db = db.min(ANGLE_BINS as isize - db);
+            db <= 4 && c.2.abs_diff(p.2) <= 4 && c.3.abs_diff(p.3) <= 4
+        });
+        if !near {
+            peaks.push(c);
+            if peaks.len() == PEAKS_PER_TEMPLATE {
+                break;
+            }
+        }
+    }
+    let poses = peaks
+        .into_iter()
+        .map(|(v, b, y, x)| {
+            // The mean of the votes around the peak, for a start within a few pixels and about a
+            // degree: centroid from the cells, angle from the votes' own angles.
+            let (mut sx, mut sy, mut sa, mut sw) = (0.0, 0.0, 0.0, 0.0);
+            for db in [-1isize, 0, 1] {
+                let bb = (b as isize + db).rem_euclid(ANGLE_BINS as isize) as usize;
+                for yy in y.saturating_sub(1)..=(y + 1).min(ny - 1) {
+                    for xx in x.saturating_sub(1)..=(x + 1).min(nx - 1) {
+                        let k = bb * plane + yy * nx + xx;
+                        let w = cells[k][0] as f64;
+                        sx += w * (xx as f64 + 0.5);
+                        sy += w * (yy as f64 + 0.5);
+                        sa += w * ((b as isize + db) * per_bin as isize) as f64 + cells[k][1] as f64;
+                        sw += w;
+                    }
+                }
+            }
+            let (cx, cy, a) = if sw > 0.0 { (sx / sw, sy / sw, sa / sw) } else { (x as f64 + 0.5, y as f64 + 0.5, (b * per_bin) as f64) };
+            let to = Pt::new(lo.x + cx * CELL, lo.y + cy * CELL);
+            (Similarity { from: centroid, to, angle_rad: a * fine_step, scale }, v)
+        })
+        .collect();
+    for &k in &acc.touched {
+        acc.cells[k as usize] = [0; 2];
+    }
+    acc.touched.clear();
+    acc.tall.clear();
+    poses
+}
