@@ -219,6 +219,22 @@ pub enum CalibrationError {
     },
 }
 
+/// A frame of another size than the plate calibration was made on.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "frame is {width} x {height} pixels but the plate calibration was made on {} x {} frames: no positions in millimetres from it (calibrate again, or restore the camera's size)",
+    made_on.0,
+    made_on.1
+)]
+pub struct WrongFrameSize {
+    /// The frame's width.
+    pub width: usize,
+    /// The frame's height.
+    pub height: usize,
+    /// The size the calibration was made on.
+    pub made_on: (usize, usize),
+}
+
 impl Calibration {
     /// The calibration the configuration describes (a homography is fitted to its points).
     pub fn from_config(c: &CalibrationConfig) -> Result<Self, CalibrationError> {
@@ -248,6 +264,16 @@ impl Calibration {
         match self {
             Calibration::Plate(p) => Some((p.plate.width, p.plate.height)),
             _ => None,
+        }
+    }
+
+    /// Whether frames of `width` x `height` may be mapped: a plate calibration holds only for
+    /// frames of the size it was made on; another size (a binning or ROI changed on the camera)
+    /// would put every part in the wrong place.
+    pub fn fits(&self, width: usize, height: usize) -> Result<(), WrongFrameSize> {
+        match self.frame_size() {
+            Some(made_on) if made_on != (width, height) => Err(WrongFrameSize { width, height, made_on }),
+            _ => Ok(()),
         }
     }
 

@@ -585,6 +585,13 @@ pub enum RobotSend {
     All,
 }
 
+impl RobotSend {
+    /// Whether a part result goes to the robot: accepted ones always, rejects with `All`.
+    pub fn wants(self, accepted: bool) -> bool {
+        accepted || self == RobotSend::All
+    }
+}
+
 /// `[camera.robot]`: the robot controller this camera hands its parts to.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RobotConfig {
@@ -1287,6 +1294,12 @@ fn check_host_port(address: &str) -> Result<(), &'static str> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_robot_gets_accepted_parts_and_rejects_only_when_it_asked_for_all() {
+        assert!(RobotSend::Accepted.wants(true) && !RobotSend::Accepted.wants(false));
+        assert!(RobotSend::All.wants(true) && RobotSend::All.wants(false));
+    }
 
     const MIN: &str = "[[camera]]\nunit_id = 1\nkb_from_simulator = true\n[camera.source]\nkind = \"sim\"\n";
 

@@ -154,6 +154,10 @@ fn robot_millimetres_over_the_whole_field_are_within_hundredths_where_a_homograp
         .unwrap();
         let Calibration::Plate(p) = &cal else { panic!("a plate calibration") };
         assert!(p.robot.mirrored, "the cell's robot sees the belt mirrored");
+        // It holds for frames of the size it was made on, and names both sizes for any other.
+        assert!(cal.fits(2592, 1944).is_ok());
+        let e = cal.fits(1296, 972).unwrap_err().to_string();
+        assert!(e.contains("1296 x 972") && e.contains("2592 x 1944"), "{e}");
         assert!(cal.describe().contains("mirrored"), "{}", cal.describe());
         assert!(cal.describe().contains("similarity fitted to 4 points"), "{}", cal.describe());
         // Fitted rigidly as configured, the start-up log says so whatever scale comes out.

@@ -167,3 +167,38 @@ fn a_stain_at_the_templates_border_is_left_out_and_a_cut_part_refused() {
         assert!(matches!(refused, Err(TemplateError::AtBorder)), "{name} {face}: {:?}", refused.map(|(_, l)| l));
     }
 }
+
+/// A camera whose resolution changed under a configured ROI: the error names both.
+#[test]
+fn a_roi_past_the_frame_names_the_roi_and_the_frame() {
+    let sim = Simulator::new(SimConfig::default()).unwrap();
+    let estimator = Estimator::new(&sim.enrolled(&Params::default()).unwrap(), Params::default()).unwrap();
+    let img = GrayImage::new(640, 480, 30);
+    assert!(estimator.estimate_in(&img, Some([0, 0, 640, 480])).is_ok());
+    for roi in [[600, 0, 100, 100], [0, 470, 64, 64], [usize::MAX, 0, 64, 64]] {
+        let e = estimator.estimate_in(&img, Some(roi)).unwrap_err();
+        assert_eq!(e, lfi_bridge::vision::FrameError::Roi { roi, width: 640, height: 480 });
+        let text = e.to_string();
+        assert!(text.contains("region of interest") && text.contains("640 x 480"), "{text}");
+    }
+}
+
+/// A ROI's parts are reported in the whole frame's pixels, pose and lines too.
+#[test]
+fn a_part_found_in_a_roi_is_reported_in_frame_pixels_with_its_pose_and_lines() {
+    let sim = Simulator::new(SimConfig { width: 1296, height: 972, seed: 5, noise: None }).unwrap();
+    let estimator = Estimator::new(&sim.enrolled(&Params::default()).unwrap(), Params::default()).unwrap();
+    let scene = sim.scene_with(0, "clean").unwrap();
+    let whole = estimator.estimate_in(&scene.image, None).unwrap();
+    let roi = [40, 30, 1296 - 40, 972 - 30];
+    let cut = estimator.estimate_in(&scene.image, Some(roi)).unwrap();
+    let (a, b) = (&whole.parts[0], &cut.parts[0]);
+    assert!((a.x - b.x).abs() < 0.05 && (a.y - b.y).abs() < 0.05, "{} {} vs {} {}", a.x, a.y, b.x, b.y);
+    let origin = |p: &lfi_bridge::vision::PartEstimate| {
+        let (i, pose) = p.matched.unwrap();
+        pose.apply(estimator.templates().nth(i).unwrap().origin)
+    };
+    assert!((origin(a) - origin(b)).norm() < 0.05, "the matched pose moved with the ROI");
+    let (sa, sb) = (a.axis.unwrap(), b.axis.unwrap());
+    assert!((sa.a - sb.a).norm() < 0.5, "{sa:?} vs {sb:?}");
+}

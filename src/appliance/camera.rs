@@ -7,29 +7,21 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use super::enrol::{EnrolError, EnrolRequest, Enrolled, Shown};
+pub use super::job::InForce;
 use super::source::{Source, SourceError};
-use crate::calibration::Calibration;
 use crate::config::Trigger;
 use crate::handshake::{Command, Fault, Handshake, JobOutcome, Outcome, PartResult, Queued};
-use crate::vision::{Estimator, FrameEstimate, GrayImage, MIN_SIDE, PartEstimate};
+use crate::vision::{FrameEstimate, GrayImage, PartEstimate};
 
-/// The estimator a camera uses; replaced whole when the operator enrolls a template.
-pub type SharedEstimator = Arc<std::sync::RwLock<Arc<Estimator>>>;
+/// The job in force as everyone but the worker sees it: read, never written (the worker puts a
+/// new job in force whole, see [`Worker`]).
+pub type SharedJob = Arc<std::sync::RwLock<Arc<InForce>>>;
 
-/// The job in force, shared by the worker (which changes it) and enrolment (which writes into
-/// its knowledge base with its parameters).
-#[derive(Debug, Clone)]
-pub struct InForce {
-    /// The job's id (JOB_ID).
-    pub id: u16,
-    /// The job's name.
-    pub name: String,
-    /// Where its templates live (a file is rewritten on enrolment).
-    pub kb: crate::config::KbSource,
-    /// The parameters its estimator was built with.
-    pub params: crate::vision::Params,
-    /// Its pixels-to-millimetres mapping (the operator view shows it and draws its grid).
-    pub calibration: Calibration,
+/// What the worker is asked to do besides the PLC's commands, with where the answer goes.
+pub enum Order {
+    /// Enrol a part of the current frame (the operator view).
+    Enrol(EnrolRequest, tokio::sync::oneshot::Sender<Result<Enrolled, EnrolError>>),
 }
 
 /// What the operator view shows of a camera: the latest frame and estimate, and counters.
@@ -182,22 +174,26 @@ pub const PUBLISHED: usize = 256;
 /// Where a camera's acquisitions are published (OPC UA subscribes; nobody need listen).
 pub type Published = tokio::sync::broadcast::Sender<std::sync::Arc<Acquisition>>;
 
-/// Everything a worker needs.
+/// Everything a worker needs. It is the only owner of the job in force: a job change (a PLC
+/// command) and an enrolment (an [`Order`]) are done here, between frames, and each puts a new
+/// job in force whole; the rest of the appliance reads `shared`.
 pub(crate) struct Worker {
     pub name: String,
     pub trigger: Trigger,
-    pub roi: Option<[usize; 4]>,
-    pub estimator: SharedEstimator,
-    pub calibration: Calibration,
+    /// The job in force.
+    pub job: Arc<InForce>,
+    /// Where the job in force is shown to the rest of the appliance.
+    pub shared: SharedJob,
     pub source: Box<dyn Source>,
     pub handshake: Arc<Mutex<Handshake>>,
     pub commands: Receiver<Command>,
+    pub orders: Receiver<Order>,
     pub live: Arc<Mutex<Live>>,
     pub started: Instant,
     pub stop: Arc<AtomicBool>,
     /// Accepted (or all) results for the robot link, if one is configured.
     pub robot: Option<tokio::sync::mpsc::UnboundedSender<Queued>>,
-    pub robot_sends_all: bool,
+    pub robot_send: crate::config::RobotSend,
     /// The image archive, if configured (dropped with the worker: it writes what was queued).
     pub archive: Option<super::archive::Archive>,
     /// The operator view's history, if kept.
@@ -205,12 +201,7 @@ pub(crate) struct Worker {
     /// Told of every frame and fault.
     pub changes: super::changes::Changes,
     /// The jobs the PLC may switch between, and what loading one needs.
-    pub jobs: Vec<crate::config::JobConfig>,
-    pub source_config: crate::config::SourceConfig,
-    pub base_params: crate::vision::Params,
-    pub in_force: Arc<Mutex<InForce>>,
-    /// The job in force's templates (the operator view lists them; enrolment adds to them).
-    pub templates: Arc<Mutex<crate::kb::KnowledgeBase>>,
+    pub jobs: super::job::Jobs,
     /// Every completed acquisition, for OPC UA.
     pub published: Published,
 }
@@ -219,6 +210,13 @@ impl Worker {
     pub(crate) fn run(mut self) {
         tracing::info!(camera = %self.name, "camera worker started ({:?} trigger)", self.trigger);
         while !self.stop.load(Ordering::Relaxed) {
+            while let Ok(order) = self.orders.try_recv() {
+                match order {
+                    Order::Enrol(req, reply) => {
+                        let _ = reply.send(self.enrol(&req));
+                    }
+                }
+            }
             match self.trigger {
                 Trigger::Modbus => match self.commands.recv_timeout(Duration::from_millis(100)) {
                     Ok(Command::Acquire { acq_id }) => {
@@ -268,54 +266,66 @@ impl Worker {
     /// Either way the handshake learns the outcome (JOB_STATUS) and the log says why.
     fn change_job(&mut self, id: u16) {
         let t = Instant::now();
-        let loaded = match self.jobs.iter().find(|j| j.id == id) {
-            None => {
-                let ids: Vec<String> = self.jobs.iter().map(|j| j.id.to_string()).collect();
-                Err(format!("job {id} is not configured (jobs: {})", ids.join(", ")))
-            }
-            Some(job) => super::job::load_job(&self.name, job, &self.source_config, &self.base_params)
-                .map(|l| (job.clone(), l))
-                .map_err(|e| format!("job {id} ({}): {}", job.name, crate::logging::error_chain(&e))),
-        };
-        // The job in force first, then the rest, as enrolment takes them: one of the two runs
-        // whole before the other.
-        let mut in_force = self.in_force.lock().unwrap_or_else(|p| p.into_inner());
-        let mut hs = self.handshake.lock().unwrap_or_else(|p| p.into_inner());
+        let loaded = self.jobs.load(id);
         match loaded {
-            Ok((job, l)) => {
-                let types = l.kb.type_count().min(65535) as u16;
-                *self.estimator.write().unwrap_or_else(|p| p.into_inner()) = Arc::new(l.estimator);
-                self.roi = job.roi;
-                self.calibration = l.calibration;
-                *self.templates.lock().unwrap_or_else(|p| p.into_inner()) = l.kb;
-                *in_force = InForce {
-                    id: job.id,
-                    name: job.name.clone(),
-                    kb: job.kb.clone(),
-                    params: l.params,
-                    calibration: self.calibration.clone(),
-                };
-                hs.set_types_enrolled(types);
-                hs.job_changed(id, JobOutcome::InForce { expected_type: job.expected_type });
+            Ok(l) => {
+                let (job, kb_desc) = (l.job, l.kb_desc);
+                let expected_type = job.expected_type;
                 tracing::info!(
                     camera = %self.name,
-                    "job {id} ({}) in force after {:.0} ms: knowledge base {}; calibration {}{}",
+                    "job {id} ({}) in force after {:.0} ms: knowledge base {kb_desc}; calibration {}{}",
                     job.name,
                     t.elapsed().as_secs_f64() * 1e3,
-                    l.kb_desc,
-                    self.calibration.describe(),
-                    job.expected_type.map(|e| format!("; EXPECTED_TYPE {e}")).unwrap_or_default()
+                    job.calibration.describe(),
+                    expected_type.map(|e| format!("; EXPECTED_TYPE {e}")).unwrap_or_default()
                 );
+                let mut hs = self.put_in_force(job);
+                hs.job_changed(id, JobOutcome::InForce { expected_type });
             }
             Err(reason) => {
-                hs.job_changed(id, JobOutcome::Failed);
-                let message = format!("job change failed, job {} stays in force: {reason}", in_force.id);
-                drop(hs);
-                drop(in_force);
+                self.handshake.lock().unwrap_or_else(|p| p.into_inner()).job_changed(id, JobOutcome::Failed);
+                let message = format!("job change failed, job {} stays in force: {reason}", self.job.id);
                 tracing::warn!(camera = %self.name, "{message}");
                 self.note_error(message);
             }
         }
+    }
+
+    /// Puts `job` in force: for the next frame, for everyone who reads it, and as the
+    /// handshake's TYPES_ENROLLED. Returns the handshake, still locked, for what else it must
+    /// learn in the same step (a job change's JOB_STATUS).
+    fn put_in_force(&mut self, job: InForce) -> std::sync::MutexGuard<'_, Handshake> {
+        let job = Arc::new(job);
+        let mut hs = self.handshake.lock().unwrap_or_else(|p| p.into_inner());
+        hs.set_types_enrolled(job.types_enrolled());
+        *self.shared.write().unwrap_or_else(|p| p.into_inner()) = job.clone();
+        self.job = job;
+        super::changes::bump(&self.changes);
+        hs
+    }
+
+    /// An operator's enrolment (see [`super::enrol`]): the job with the new template goes in
+    /// force between two frames.
+    fn enrol(&mut self, req: &EnrolRequest) -> Result<Enrolled, EnrolError> {
+        let shown = {
+            let live = self.live.lock().unwrap_or_else(|p| p.into_inner());
+            Shown { frame: live.frame.clone(), estimate: live.estimate.clone(), label: live.label.clone(), acq_id: live.frame_acq_id }
+        };
+        let (job, done) = super::enrol::enrol(&self.job, shown, req)?;
+        drop(self.put_in_force(job));
+        tracing::info!(
+            camera = %self.name,
+            "{} template {} {} (id {}) from part {} of {}, asked by {}; {}",
+            if done.replaced { "replaced" } else { "enrolled" },
+            req.type_name,
+            req.face,
+            req.id,
+            req.part,
+            done.from,
+            req.by,
+            done.saved
+        );
+        Ok(done)
     }
 
     fn update_camera_ok(&mut self) {
@@ -338,23 +348,21 @@ impl Worker {
     }
 
     fn process(&mut self, acq_id: u16, frame: Result<super::source::Frame, SourceError>, t0: Instant) {
-        let estimator = self.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
+        let job = self.job.clone();
         let mut debris = 0;
         let mut estimated = None;
         // A frame that came but could not be estimated is still worth archiving.
         let mut unusable: Option<(Arc<GrayImage>, String, String)> = None;
         let outcome = match frame {
             Err(e) => {
-                let fault = if matches!(e, SourceError::Unusable(_)) { Fault::Frame } else { Fault::Camera };
+                let fault = e.fault();
                 tracing::warn!(camera = %self.name, acq_id, "acquisition failed: {e}");
                 self.note_error(e.to_string());
                 Outcome::Failed { fault }
             }
-            // One estimator for the estimate and its results: the template a result names is
-            // looked up again when its position is mapped (an enrolment may swap it meanwhile).
             Ok(f) => {
-                match self.calibration_fits(&f.image).and_then(|()| estimate_in(&estimator, &f.image, self.roi).map_err(|e| e.to_string()))
-                {
+                let fits = job.calibration.fits(f.image.width, f.image.height).map_err(|e| e.to_string());
+                match fits.and_then(|()| job.estimator.estimate_in(&f.image, job.roi).map_err(|e| e.to_string())) {
                     Err(e) => {
                         tracing::warn!(camera = %self.name, acq_id, frame = %f.label, "frame error: {e}");
                         self.note_error(format!("{}: {e}", f.label));
@@ -362,7 +370,7 @@ impl Worker {
                         Outcome::Failed { fault: Fault::Frame }
                     }
                     Ok(fe) => {
-                        let parts = fe.parts.iter().map(|p| self.result(p, &estimator)).collect();
+                        let parts = fe.parts.iter().map(|p| result(p, &job)).collect();
                         let processing_ms = fe.timings.total;
                         debris = fe.debris;
                         estimated = Some((Arc::new(f.image), f.label, fe));
@@ -381,7 +389,7 @@ impl Worker {
         // the PLC gets (the rejected ones only with `send = "all"`), the log, the page and the
         // counters the same parts in the same order.
         if let Some(tx) = &self.robot {
-            for r in results.iter().filter(|r| r.is_part() && (r.part.accepted || self.robot_sends_all)) {
+            for r in results.iter().filter(|r| r.is_part() && self.robot_send.wants(r.part.accepted)) {
                 let _ = tx.send(r.clone());
             }
         }
@@ -398,17 +406,15 @@ impl Worker {
                 (None, None) => None, // no frame came: nothing to keep
             };
             if let Some((image, label, fe, error)) = frame {
-                let job_id = self.in_force.lock().unwrap_or_else(|p| p.into_inner()).id;
-                archive.offer(archive_item(&self.name, archive.unit_id(), acq_id, job_id, &results, image, label, fe, error));
+                archive.offer(archive_item(&self.name, archive.unit_id(), acq_id, job.id, &results, image, label, fe, error));
             }
         }
         // Why there was no usable frame, for OPC UA's results and the page's history.
         let error = if estimated.is_some() { None } else { self.live.lock().unwrap_or_else(|p| p.into_inner()).last_error.clone() };
         if !results.is_empty() && self.published.receiver_count() > 0 {
-            let job_id = self.in_force.lock().unwrap_or_else(|p| p.into_inner()).id;
             let fe = estimated.as_ref().map(|(_, _, fe)| fe);
             // A receiver too slow to keep up loses the oldest; it says so when it reads.
-            let _ = self.published.send(Arc::new(Acquisition::of(acq_id, job_id, &results, fe, error.clone())));
+            let _ = self.published.send(Arc::new(Acquisition::of(acq_id, job.id, &results, fe, error.clone())));
         }
         let cycle = t0.elapsed().as_secs_f64() * 1e3;
         if let Some(history) = &self.history
@@ -454,34 +460,6 @@ impl Worker {
         }
         if fe.debris > 0 {
             tracing::info!(camera = %self.name, acq_id, "{} piece(s) of debris on the belt", fe.debris);
-        }
-    }
-
-    /// A plate calibration holds only for frames of the size it was made on: another size (a
-    /// binning or ROI changed on the camera) would put every part in the wrong place.
-    fn calibration_fits(&self, img: &GrayImage) -> Result<(), String> {
-        match self.calibration.frame_size() {
-            Some((w, h)) if (w, h) != (img.width, img.height) => Err(format!(
-                "frame is {} x {} pixels but the plate calibration was made on {w} x {h} frames: no positions in millimetres from it (calibrate again, or restore the camera's size)",
-                img.width, img.height
-            )),
-            _ => Ok(()),
-        }
-    }
-
-    /// A part's result in the robot frame, as the estimate left it (the handshake makes the
-    /// final one).
-    fn result(&self, p: &PartEstimate, estimator: &Estimator) -> PartResult {
-        let (x, y, a) = self.calibration.apply_part(p, estimator);
-        PartResult {
-            accepted: p.accepted,
-            reason: p.reason,
-            type_id: p.type_id,
-            face: crate::registers::face_code(p.face),
-            angle_deg: a,
-            x_mm: x,
-            y_mm: y,
-            confidence: p.confidence,
         }
     }
 
@@ -589,6 +567,22 @@ fn archive_item(
     super::archive::Item { stem, image, sidecar }
 }
 
+/// A part's result in the robot frame, as the estimate left it (the handshake makes the
+/// final one).
+fn result(p: &PartEstimate, job: &InForce) -> PartResult {
+    let (x, y, a) = job.calibration.apply_part(p, &job.estimator);
+    PartResult {
+        accepted: p.accepted,
+        reason: p.reason,
+        type_id: p.type_id,
+        face: crate::registers::face_code(p.face),
+        angle_deg: a,
+        x_mm: x,
+        y_mm: y,
+        confidence: p.confidence,
+    }
+}
+
 /// The estimate's parts in the final results' order (picking order), each with its final
 /// verdict: `parts[i]` is the part with PART_INDEX `i + 1`.
 fn in_final_order(mut fe: FrameEstimate, results: &[Queued]) -> FrameEstimate {
@@ -600,72 +594,4 @@ fn in_final_order(mut fe: FrameEstimate, results: &[Queued]) -> FrameEstimate {
         }
     }
     fe
-}
-
-/// The estimate of a frame, or of its region of interest with positions and outlines moved back
-/// into the whole frame's pixels. A region that does not fit the frame delivered is an error
-/// naming both (a camera whose resolution was changed under a configured ROI).
-fn estimate_in(estimator: &Estimator, img: &GrayImage, roi: Option<[usize; 4]>) -> Result<FrameEstimate, crate::vision::FrameError> {
-    let Some([x, y, w, h]) = roi else { return estimator.estimate(img.view()?) };
-    let misfit = crate::vision::FrameError::Roi { roi: [x, y, w, h], width: img.width, height: img.height };
-    let crop = img.crop(x, y, w, h).filter(|c| c.width >= MIN_SIDE && c.height >= MIN_SIDE).ok_or(misfit)?;
-    let mut fe = estimator.estimate(crop.view()?)?;
-    // Everything a part holds in pixels moves to the frame's: its position, outline, line
-    // features and the matched template's pose (the overlay draws them, a calibration
-    // registers the template again from that pose).
-    let shift = crate::vision::Pt::new(x as f64, y as f64);
-    for p in &mut fe.parts {
-        p.x += shift.x;
-        p.y += shift.y;
-        for q in &mut p.outline {
-            *q = *q + shift;
-        }
-        for s in p.segments.iter_mut().chain(p.axis.as_mut()) {
-            s.a = s.a + shift;
-            s.b = s.b + shift;
-        }
-        if let Some((_, pose)) = &mut p.matched {
-            pose.to = pose.to + shift;
-        }
-    }
-    Ok(fe)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::vision::{FrameError, Params};
-
-    #[test]
-    fn a_roi_past_the_frame_names_the_roi_and_the_frame() {
-        let sim = crate::sim::Simulator::new(crate::sim::SimConfig::default()).unwrap();
-        let estimator = Estimator::new(&sim.enrolled(&Params::default()).unwrap(), Params::default()).unwrap();
-        let img = GrayImage::new(640, 480, 30);
-        assert!(estimate_in(&estimator, &img, Some([0, 0, 640, 480])).is_ok());
-        for roi in [[600, 0, 100, 100], [0, 470, 64, 64], [usize::MAX, 0, 64, 64]] {
-            let e = estimate_in(&estimator, &img, Some(roi)).unwrap_err();
-            assert_eq!(e, FrameError::Roi { roi, width: 640, height: 480 });
-            let text = e.to_string();
-            assert!(text.contains("region of interest") && text.contains("640 x 480"), "{text}");
-        }
-    }
-
-    #[test]
-    fn a_part_found_in_a_roi_is_reported_in_frame_pixels_with_its_pose_and_lines() {
-        let sim = crate::sim::Simulator::new(crate::sim::SimConfig { width: 1296, height: 972, seed: 5, noise: None }).unwrap();
-        let estimator = Estimator::new(&sim.enrolled(&Params::default()).unwrap(), Params::default()).unwrap();
-        let scene = sim.scene_with(0, "clean").unwrap();
-        let whole = estimate_in(&estimator, &scene.image, None).unwrap();
-        let roi = [40, 30, 1296 - 40, 972 - 30];
-        let cut = estimate_in(&estimator, &scene.image, Some(roi)).unwrap();
-        let (a, b) = (&whole.parts[0], &cut.parts[0]);
-        assert!((a.x - b.x).abs() < 0.05 && (a.y - b.y).abs() < 0.05, "{} {} vs {} {}", a.x, a.y, b.x, b.y);
-        let origin = |p: &PartEstimate| {
-            let (i, pose) = p.matched.unwrap();
-            pose.apply(estimator.templates().nth(i).unwrap().origin)
-        };
-        assert!((origin(a) - origin(b)).norm() < 0.05, "the matched pose moved with the ROI");
-        let (sa, sb) = (a.axis.unwrap(), b.axis.unwrap());
-        assert!((sa.a - sb.a).norm() < 0.5, "{sa:?} vs {sb:?}");
-    }
 }

@@ -1,13 +1,14 @@
 //! Enrolling a template from a part of a camera's current frame: cut it out, build the
-//! template, save the knowledge base (when it is a file), then swap the camera's estimator and
-//! tell its handshake. The operator view only carries the request in and the answer out.
+//! template, save the knowledge base (when it is a file), and make the job with it. The camera's
+//! worker asks for it and puts the new job in force (it alone changes the job in force); the
+//! operator view only carries the request in and the answer out.
 
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use super::CameraHandle;
+use super::job::InForce;
 use crate::config::KbSource;
-use crate::vision::{Estimator, Face, GrayImage, Pt, Template};
+use crate::vision::{Face, FrameEstimate, GrayImage, Pt, Template};
 
 /// What to enrol: part `part` of the camera's current frame as `type_name` (id `id`), `face`.
 #[derive(Debug, Clone)]
@@ -81,6 +82,9 @@ pub enum EnrolError {
     /// The new templates do not make an estimator.
     #[error("the new knowledge base gives no estimator")]
     Estimator(#[from] crate::vision::EstimatorError),
+    /// The camera's worker has stopped (the appliance is stopping): nothing was enrolled.
+    #[error("the camera's worker has stopped")]
+    Stopped,
     /// The image given cannot be used.
     #[error("cannot write the template image {path}: {message}")]
     Image {
@@ -113,65 +117,55 @@ impl EnrolError {
     }
 }
 
-impl CameraHandle {
-    /// Enrols a part of the current frame (see the module doc). The knowledge base file is
-    /// written first: if it cannot be, the camera keeps its estimator.
-    pub fn enrol(&self, req: &EnrolRequest) -> Result<Enrolled, EnrolError> {
-        // Before anything is cut or written: the name also becomes the template image's file name.
-        crate::kb::valid_type_name(&req.type_name)?;
-        let (frame, estimate, label, current) = {
-            let live = self.live.lock().unwrap_or_else(|p| p.into_inner());
-            (live.frame.clone(), live.estimate.clone(), live.label.clone(), live.frame_acq_id)
-        };
-        let (Some(frame), Some(estimate)) = (frame, estimate) else { return Err(EnrolError::NoFrame) };
-        if let Some(asked) = req.acq_id
-            && asked != current
-        {
-            return Err(EnrolError::FrameChanged { asked, current });
-        }
-        let part =
-            estimate.parts.get(req.part.wrapping_sub(1)).ok_or(EnrolError::NoPart { part: req.part, count: estimate.parts.len() })?;
-        let crop = crop_part(&frame, &part.outline).ok_or(EnrolError::AtBorder { part: req.part })?;
-        let view = crop.view().map_err(|e| EnrolError::Template { part: req.part, source: e.into() })?;
-        // Held to the end: a job change waits, so the template goes into the knowledge base of
-        // the job it was cut under, and the estimator built on it is that job's.
-        let job = self.job.lock().unwrap_or_else(|p| p.into_inner());
-        let (template, left_out) = Template::learn(view, &req.type_name, req.id, req.face, None, &job.params)
-            .map_err(|source| EnrolError::Template { part: req.part, source })?;
-        if let Some(l) = left_out {
-            tracing::warn!(part = req.part, type_name = %req.type_name, "enrolment: {l}");
-        }
-        let from = if label.is_empty() { "the current frame".to_string() } else { label };
-        let mut kb = self.templates.lock().unwrap_or_else(|p| p.into_inner()).clone();
-        let replaced = kb.enroll(template, format!("{}: {from}, part {}", req.by, req.part))?;
-        let estimator = Estimator::new(&kb.templates(), job.params.clone())?;
-        let saved = match &job.kb {
-            KbSource::File(path) => {
-                let png = path.with_file_name(format!("{}_{}.png", req.type_name, req.face));
-                crate::imageio::write_png(&png, &crop)
-                    .map_err(|e| EnrolError::Image { path: png.clone(), message: crate::logging::error_chain(&e) })?;
-                kb.save(path)?;
-                format!("saved to {} (template image {})", path.display(), png.display())
-            }
-            KbSource::Simulator => "kept in memory only (kb_from_simulator)".to_string(),
-        };
-        *self.estimator.write().unwrap_or_else(|p| p.into_inner()) = Arc::new(estimator);
-        let types = kb.type_count() as u16;
-        *self.templates.lock().unwrap_or_else(|p| p.into_inner()) = kb;
-        self.handshake.lock().unwrap_or_else(|p| p.into_inner()).set_types_enrolled(types);
-        super::changes::bump(&self.changes);
-        tracing::info!(
-            camera = %self.name,
-            "{} template {} {} (id {}) from part {} of {from}, asked by {}; {saved}",
-            if replaced { "replaced" } else { "enrolled" },
-            req.type_name,
-            req.face,
-            req.id,
-            req.part,
-            req.by
-        );
-        Ok(Enrolled { replaced, saved, from })
+/// What the camera shows when an enrolment is asked for: the current frame, its estimate (parts
+/// in picking order), where it came from, and its ACQ_ID.
+pub struct Shown {
+    /// The frame.
+    pub frame: Option<Arc<GrayImage>>,
+    /// Its estimate.
+    pub estimate: Option<FrameEstimate>,
+    /// Where it came from ("" when unnamed).
+    pub label: String,
+    /// Its ACQ_ID.
+    pub acq_id: u16,
+}
+
+/// Enrols part `req.part` of the frame `shown` into `job` (see the module doc): the job with the
+/// new template, its estimator built, and what was done. The knowledge base file is written
+/// first: if it cannot be, nothing changes.
+pub fn enrol(job: &InForce, shown: Shown, req: &EnrolRequest) -> Result<(InForce, Enrolled), EnrolError> {
+    // Before anything is cut or written: the name also becomes the template image's file name.
+    crate::kb::valid_type_name(&req.type_name)?;
+    let Shown { frame, estimate, label, acq_id: current } = shown;
+    let (Some(frame), Some(estimate)) = (frame, estimate) else { return Err(EnrolError::NoFrame) };
+    if let Some(asked) = req.acq_id
+        && asked != current
+    {
+        return Err(EnrolError::FrameChanged { asked, current });
     }
+    let part = estimate.parts.get(req.part.wrapping_sub(1)).ok_or(EnrolError::NoPart { part: req.part, count: estimate.parts.len() })?;
+    let crop = crop_part(&frame, &part.outline).ok_or(EnrolError::AtBorder { part: req.part })?;
+    let view = crop.view().map_err(|e| EnrolError::Template { part: req.part, source: e.into() })?;
+    let (template, left_out) = Template::learn(view, &req.type_name, req.id, req.face, None, &job.params)
+        .map_err(|source| EnrolError::Template { part: req.part, source })?;
+    if let Some(l) = left_out {
+        tracing::warn!(part = req.part, type_name = %req.type_name, "enrolment: {l}");
+    }
+    let from = if label.is_empty() { "the current frame".to_string() } else { label };
+    let mut kb = job.templates.clone();
+    let replaced = kb.enroll(template, format!("{}: {from}, part {}", req.by, req.part))?;
+    let next = job.with_templates(kb)?;
+    let saved = match &job.kb {
+        KbSource::File(path) => {
+            let png = path.with_file_name(format!("{}_{}.png", req.type_name, req.face));
+            crate::imageio::write_png(&png, &crop)
+                .map_err(|e| EnrolError::Image { path: png.clone(), message: crate::logging::error_chain(&e) })?;
+            next.templates.save(path)?;
+            format!("saved to {} (template image {})", path.display(), png.display())
+        }
+        KbSource::Simulator => "kept in memory only (kb_from_simulator)".to_string(),
+    };
+    Ok((next, Enrolled { replaced, saved, from }))
 }
 
 /// Cuts a part out of the frame: a square centred on its outline's centroid (so the new

@@ -1,4 +1,5 @@
-//! Loading a job: its knowledge base, the estimator on it and its calibration, all or nothing.
+//! A camera's job: loaded whole (knowledge base, the estimator on it, calibration), or not at
+//! all, and then put in force by the camera's worker, its only writer.
 
 use super::error::StartError;
 use super::source::SimSource;
@@ -6,24 +7,65 @@ use crate::calibration::Calibration;
 use crate::config::{JobConfig, KbSource, SourceConfig};
 use crate::kb::KnowledgeBase;
 use crate::sim::Simulator;
-use crate::vision::{Estimator, Params};
+use crate::vision::{Estimator, EstimatorError, Params};
 
-/// A job made ready to run: its templates, the estimator built on them with the job's accept
-/// threshold, and its calibration. Nothing of the camera changes until all of it is there.
-pub struct Loaded {
-    /// The job's templates.
-    pub kb: KnowledgeBase,
-    /// Where the templates came from, for the log.
-    pub kb_desc: String,
+/// A job ready to run, or running: everything a frame's estimate and its results need, made
+/// together and replaced together (a job change, an enrolment), so that no frame sees half of
+/// one job and half of another. Readers hold an `Arc` of it; only the worker swaps it.
+pub struct InForce {
+    /// The job's id (JOB_ID).
+    pub id: u16,
+    /// The job's name.
+    pub name: String,
+    /// Where its templates live (a file is rewritten on enrolment).
+    pub kb: KbSource,
+    /// The part of the frame it estimates, if not all.
+    pub roi: Option<[usize; 4]>,
+    /// The type the PLC expects under it, if any.
+    pub expected_type: Option<u16>,
+    /// The parameters its estimator was built with.
+    pub params: Params,
+    /// Pixels to robot millimetres (the operator view shows it and draws its grid).
+    pub calibration: Calibration,
+    /// Its templates and where each came from.
+    pub templates: KnowledgeBase,
     /// The estimator on them.
     pub estimator: Estimator,
-    /// The parameters it was built with.
-    pub params: Params,
-    /// Pixels to robot millimetres.
-    pub calibration: Calibration,
 }
 
-/// Loads a job of camera `camera` (the start-up job, or one the PLC asks for).
+impl InForce {
+    /// TYPES_ENROLLED: the types its templates name (saturates).
+    pub fn types_enrolled(&self) -> u16 {
+        self.templates.type_count().min(u16::MAX as usize) as u16
+    }
+
+    /// The same job with other templates (an enrolment), its estimator built on them.
+    pub fn with_templates(&self, templates: KnowledgeBase) -> Result<InForce, EstimatorError> {
+        let estimator = Estimator::new(&templates.templates(), self.params.clone())?;
+        Ok(InForce {
+            id: self.id,
+            name: self.name.clone(),
+            kb: self.kb.clone(),
+            roi: self.roi,
+            expected_type: self.expected_type,
+            params: self.params.clone(),
+            calibration: self.calibration.clone(),
+            templates,
+            estimator,
+        })
+    }
+}
+
+/// A job loaded, and where its templates came from (for the log).
+pub struct Loaded {
+    /// The job, ready to be put in force.
+    pub job: InForce,
+    /// Where the templates came from, for the log.
+    pub kb_desc: String,
+}
+
+/// Loads a job of camera `camera` (the start-up job, or one the PLC asks for): nothing of the
+/// camera changes until all of it is there.
 pub fn load_job(camera: &str, job: &JobConfig, source: &SourceConfig, base: &Params) -> Result<Loaded, StartError> {
     let params = Params { accept_threshold: job.accept_threshold, ..base.clone() };
     let (kb, kb_desc) = match &job.kb {
@@ -52,5 +94,41 @@ pub fn load_job(camera: &str, job: &JobConfig, source: &SourceConfig, base: &Par
         Estimator::new(&kb.templates(), params.clone()).map_err(|source| StartError::Estimator { camera: camera.to_string(), source })?;
     let calibration =
         Calibration::from_config(&job.calibration).map_err(|source| StartError::Calibration { camera: camera.to_string(), source })?;
-    Ok(Loaded { kb, kb_desc, estimator, params, calibration })
+    let job = InForce {
+        id: job.id,
+        name: job.name.clone(),
+        kb: job.kb.clone(),
+        roi: job.roi,
+        expected_type: job.expected_type,
+        params,
+        calibration,
+        templates: kb,
+        estimator,
+    };
+    Ok(Loaded { job, kb_desc })
+}
+
+/// The jobs a camera may switch between, and what loading one needs.
+pub struct Jobs {
+    /// The camera's name (errors name it).
+    pub camera: String,
+    /// Its `[[camera.job]]` tables.
+    pub configured: Vec<JobConfig>,
+    /// Its source (a simulated camera's templates make a `kb_from_simulator` job).
+    pub source: SourceConfig,
+    /// The parameters every job starts from.
+    pub base: Params,
+}
+
+impl Jobs {
+    /// Loads job `id`, or says why not: not configured (naming the jobs that are), or the load's
+    /// whole error chain.
+    pub fn load(&self, id: u16) -> Result<Loaded, String> {
+        let Some(job) = self.configured.iter().find(|j| j.id == id) else {
+            let ids: Vec<String> = self.configured.iter().map(|j| j.id.to_string()).collect();
+            return Err(format!("job {id} is not configured (jobs: {})", ids.join(", ")));
+        };
+        load_job(&self.camera, job, &self.source, &self.base)
+            .map_err(|e| format!("job {id} ({}): {}", job.name, crate::logging::error_chain(&e)))
+    }
 }

@@ -19,19 +19,21 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use tokio::net::TcpListener;
+use tokio::sync::mpsc::UnboundedReceiver;
 use tokio_util::sync::CancellationToken;
 
-use crate::config::{CameraConfig, Config, KbSource, SourceConfig};
-use crate::handshake::{Handshake, Settings};
-use crate::kb::KnowledgeBase;
+use crate::config::{CameraConfig, Config, KbSource, RobotConfig, SourceConfig};
+use crate::handshake::{Handshake, Queued, Settings};
 use crate::modbus::server::{self, Station, Stations, Stats};
+use crate::registers::RobotView;
 use crate::sim::Simulator;
 use crate::vision::Params;
 pub use camera::Live;
 use camera::Worker;
 pub use changes::{Changes, bump};
+use enrol::{EnrolError, EnrolRequest, Enrolled};
 pub use error::StartError;
-pub use job::{Loaded, load_job};
+pub use job::{InForce, Loaded, load_job};
 pub use priority::{VIEW_NICE, lower_priority};
 use source::{DirSource, SimSource, Source, VideoSource};
 
@@ -45,13 +47,8 @@ pub struct CameraHandle {
     pub handshake: Arc<Mutex<Handshake>>,
     /// What the operator view shows.
     pub live: Arc<Mutex<Live>>,
-    /// The estimator of the job in force (swapped whole on a job change or an enrolment).
-    pub estimator: camera::SharedEstimator,
-    /// The job in force: where its knowledge base lives (a file is rewritten on enrolment) and
-    /// the parameters its estimator was built with.
-    pub job: Arc<Mutex<camera::InForce>>,
-    /// The enrolled templates of the job in force and where each came from.
-    pub templates: Arc<Mutex<KnowledgeBase>>,
+    /// The job in force (its templates, estimator, calibration), as the worker last put it.
+    job: camera::SharedJob,
     /// The robot link's state, if one is configured.
     pub robot: Option<Arc<Mutex<crate::registers::RobotView>>>,
     /// The image archive (its counters, and where to read it back), if one is configured.
@@ -71,6 +68,8 @@ pub struct CameraHandle {
     pub published: camera::Published,
     /// Into the camera's worker, as the Modbus server sends (job changes from the page).
     commands: std::sync::mpsc::Sender<crate::handshake::Command>,
+    /// Into the camera's worker: enrolments.
+    orders: std::sync::mpsc::Sender<camera::Order>,
     thread: Mutex<Option<std::thread::JoinHandle<()>>>,
 }
 
@@ -135,148 +134,185 @@ fn draw_boot_id() -> u16 {
     rand::random_range(1..=u16::MAX)
 }
 
+/// What every camera of one start shares.
+struct Common {
+    started: Instant,
+    boot_id: u16,
+    stop: Arc<AtomicBool>,
+    params: Params,
+    changes: Changes,
+    history_frames: usize,
+    queue_depth: usize,
+}
+
+/// A camera's robot link, to be run once the runtime's tasks start: (camera name, its
+/// configuration, the parts the worker sends, the link's state for the registers).
+type RobotLink = (String, RobotConfig, UnboundedReceiver<Queued>, Arc<Mutex<RobotView>>);
+
+/// One camera wired up, its worker running: its handle, the Modbus server's station for it, and
+/// its robot link (if configured).
+struct Wired {
+    handle: CameraHandle,
+    station: Station,
+    robot_link: Option<RobotLink>,
+}
+
 /// Starts everything; returns once the Modbus server listens.
 pub async fn start(cfg: &Config) -> Result<Running, StartError> {
     let started = Instant::now();
     let boot_id = draw_boot_id();
     tracing::info!("BOOT_ID {boot_id}");
-    let stop = Arc::new(AtomicBool::new(false));
-    let params = Params { accept_threshold: cfg.accept_threshold, ..Params::default() };
-    let mut cameras = Vec::new();
-    let changes: Changes = Arc::new(tokio::sync::watch::channel(0).0);
-    let history_frames = cfg.http.as_ref().map_or(0, |h| h.history_frames);
-    let mut stations = Vec::new();
-    let mut robot_links = Vec::new();
+    let common = Common {
+        started,
+        boot_id,
+        stop: Arc::new(AtomicBool::new(false)),
+        params: Params { accept_threshold: cfg.accept_threshold, ..Params::default() },
+        changes: Arc::new(tokio::sync::watch::channel(0).0),
+        history_frames: cfg.http.as_ref().map_or(0, |h| h.history_frames),
+        queue_depth: cfg.queue_depth,
+    };
+    let (mut cameras, mut stations, mut robot_links) = (Vec::new(), Vec::new(), Vec::new());
     for cam in &cfg.cameras {
-        let job = cam.start();
-        let Loaded { kb: entries, kb_desc, estimator, params: job_params, calibration } = load_job(&cam.name, job, &cam.source, &params)?;
-        let estimator: camera::SharedEstimator = Arc::new(std::sync::RwLock::new(Arc::new(estimator)));
-        let types = entries.type_count().min(65535) as u16;
-        tracing::info!(
-            camera = %cam.name,
-            unit_id = cam.unit_id,
-            "job {} ({}): knowledge base: {kb_desc}; calibration: {}",
-            job.id,
-            job.name,
-            calibration.describe()
-        );
-        // The other jobs load when the PLC asks for them; a knowledge base file missing now is
-        // named now, so that it is not first noticed as a failed change on the line.
-        for other in cam.jobs.iter().filter(|j| j.id != job.id) {
-            if let KbSource::File(p) = &other.kb
-                && !p.is_file()
-            {
-                tracing::warn!(camera = %cam.name, "job {} ({}): knowledge base {} does not exist (a change to it will fail)", other.id, other.name, p.display());
-            }
-        }
-        let in_force = Arc::new(Mutex::new(camera::InForce {
-            id: job.id,
-            name: job.name.clone(),
-            kb: job.kb.clone(),
-            params: job_params,
-            calibration: calibration.clone(),
-        }));
-        let templates = Arc::new(Mutex::new(entries));
-        let handshake = Arc::new(Mutex::new(Handshake::new(Settings {
-            queue_depth: cfg.queue_depth,
-            online: cam.online,
-            word_order: cam.word_order,
-            types_enrolled: types,
-            picking_order: cam.picking_order,
-            boot_id,
-            job_id: job.id,
-        })));
-        let (tx, rx) = std::sync::mpsc::channel();
-        let live = Arc::new(Mutex::new(Live::default()));
-        let (source, genicam) = source_for(cam)?;
-        let (robot_tx, robot_view) = match &cam.robot {
-            Some(rc) => {
-                let (rtx, rrx) = tokio::sync::mpsc::unbounded_channel();
-                let view = Arc::new(Mutex::new(crate::registers::RobotView::default()));
-                robot_links.push((cam.name.clone(), rc.clone(), rrx, view.clone(), handshake.clone()));
-                (Some(rtx), Some(view))
-            }
-            None => (None, None),
-        };
-        let archive = match &cam.archive {
-            Some(a) => archive::Archive::start(a, &cam.name, cam.unit_id).map_err(|source| StartError::Archive {
-                camera: cam.name.clone(),
-                dir: a.dir.clone(),
-                source,
-            })?,
-            None => None,
-        };
-        let shelf = archive.as_ref().map(archive::Archive::shelf);
-        let (history, history_shelf) = if history_frames > 0 {
-            let c = changes.clone();
-            let (rec, shelf) = history::Recorder::start(&cam.name, history_frames, move || bump(&c));
-            (Some(rec), Some(shelf))
-        } else {
-            (None, None)
-        };
-        let published: camera::Published = tokio::sync::broadcast::channel(camera::PUBLISHED).0;
-        let worker = Worker {
-            name: cam.name.clone(),
-            trigger: cam.trigger,
-            roi: job.roi,
-            estimator: estimator.clone(),
-            calibration,
-            source,
-            handshake: handshake.clone(),
-            commands: rx,
-            live: live.clone(),
-            started,
-            stop: stop.clone(),
-            robot_sends_all: cam.robot.as_ref().is_some_and(|r| r.send == crate::config::RobotSend::All),
-            robot: robot_tx,
-            archive,
-            history,
-            changes: changes.clone(),
-            jobs: cam.jobs.clone(),
-            source_config: cam.source.clone(),
-            base_params: params.clone(),
-            in_force: in_force.clone(),
-            templates: templates.clone(),
-            published: published.clone(),
-        };
-        let thread =
-            std::thread::Builder::new().name(format!("camera-{}", cam.unit_id)).spawn(move || worker.run()).expect("spawn camera thread");
-        stations.push(Station {
-            unit_id: cam.unit_id,
-            handshake: handshake.clone(),
-            commands: tx.clone(),
-            last_writer: Mutex::new((None, None)),
-        });
-        cameras.push(CameraHandle {
-            unit_id: cam.unit_id,
-            name: cam.name.clone(),
-            handshake,
-            live,
-            estimator,
-            job: in_force,
-            templates,
-            robot: robot_view,
-            archive: shelf,
-            history: history_shelf,
-            changes: changes.clone(),
-            started,
-            genicam,
-            commands: tx.clone(),
-            jobs: cam.jobs.iter().map(|j| (j.id, j.name.clone())).collect(),
-            published,
-            thread: Mutex::new(Some(thread)),
-        });
+        let wired = wire(cam, &common)?;
+        cameras.push(wired.handle);
+        stations.push(wired.station);
+        robot_links.extend(wired.robot_link);
     }
     let stations = Arc::new(Stations::new(stations, started));
+    let shutdown = CancellationToken::new();
+    let (modbus_addr, stats, server) = serve_modbus(cfg, &stations, &shutdown, cameras.len()).await?;
+    let mut tasks = vec![server, heartbeat(&stations, &cameras, &shutdown)];
+    for (name, rc, rx, view) in robot_links {
+        tasks.push(tokio::spawn(crate::robot::link::run(name, rc, rx, view, shutdown.clone())));
+    }
+    let cameras = Arc::new(cameras);
+    Ok(Running { modbus_addr, http_addr: None, opcua_url: None, cameras, stations, stats, started, shutdown, stop: common.stop, tasks })
+}
+
+/// Loads a camera's start-up job and says so; a knowledge base file of another job that is
+/// missing now is named now, so that it is not first noticed as a failed change on the line.
+fn start_job(cam: &CameraConfig, params: &Params) -> Result<InForce, StartError> {
+    let job = cam.start();
+    let Loaded { job: in_force, kb_desc } = load_job(&cam.name, job, &cam.source, params)?;
+    tracing::info!(
+        camera = %cam.name,
+        unit_id = cam.unit_id,
+        "job {} ({}): knowledge base: {kb_desc}; calibration: {}",
+        job.id,
+        job.name,
+        in_force.calibration.describe()
+    );
+    for other in cam.jobs.iter().filter(|j| j.id != job.id) {
+        if let KbSource::File(p) = &other.kb
+            && !p.is_file()
+        {
+            tracing::warn!(camera = %cam.name, "job {} ({}): knowledge base {} does not exist (a change to it will fail)", other.id, other.name, p.display());
+        }
+    }
+    Ok(in_force)
+}
+
+/// One camera: its job, handshake, source, archive, history and robot channel, and its worker
+/// thread started on them.
+fn wire(cam: &CameraConfig, common: &Common) -> Result<Wired, StartError> {
+    let in_force = Arc::new(start_job(cam, &common.params)?);
+    let shared: camera::SharedJob = Arc::new(std::sync::RwLock::new(in_force.clone()));
+    let handshake = Arc::new(Mutex::new(Handshake::new(Settings {
+        queue_depth: common.queue_depth,
+        online: cam.online,
+        word_order: cam.word_order,
+        types_enrolled: in_force.types_enrolled(),
+        picking_order: cam.picking_order,
+        boot_id: common.boot_id,
+        job_id: in_force.id,
+    })));
+    let (commands, commands_rx) = std::sync::mpsc::channel();
+    let (orders, orders_rx) = std::sync::mpsc::channel();
+    let live = Arc::new(Mutex::new(Live::default()));
+    let (source, genicam) = source_for(cam)?;
+    let (robot_tx, robot_link) = match &cam.robot {
+        Some(rc) => {
+            let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
+            (Some(tx), Some((cam.name.clone(), rc.clone(), rx, Arc::new(Mutex::new(RobotView::default())))))
+        }
+        None => (None, None),
+    };
+    let archive = match &cam.archive {
+        Some(a) => archive::Archive::start(a, &cam.name, cam.unit_id).map_err(|source| StartError::Archive {
+            camera: cam.name.clone(),
+            dir: a.dir.clone(),
+            source,
+        })?,
+        None => None,
+    };
+    let shelf = archive.as_ref().map(archive::Archive::shelf);
+    let (history, history_shelf) = if common.history_frames > 0 {
+        let c = common.changes.clone();
+        let (rec, shelf) = history::Recorder::start(&cam.name, common.history_frames, move || bump(&c));
+        (Some(rec), Some(shelf))
+    } else {
+        (None, None)
+    };
+    let published: camera::Published = tokio::sync::broadcast::channel(camera::PUBLISHED).0;
+    let worker = Worker {
+        name: cam.name.clone(),
+        trigger: cam.trigger,
+        job: in_force,
+        shared: shared.clone(),
+        source,
+        handshake: handshake.clone(),
+        commands: commands_rx,
+        orders: orders_rx,
+        live: live.clone(),
+        started: common.started,
+        stop: common.stop.clone(),
+        robot_send: cam.robot.as_ref().map_or(crate::config::RobotSend::Accepted, |r| r.send),
+        robot: robot_tx,
+        archive,
+        history,
+        changes: common.changes.clone(),
+        jobs: job::Jobs { camera: cam.name.clone(), configured: cam.jobs.clone(), source: cam.source.clone(), base: common.params.clone() },
+        published: published.clone(),
+    };
+    let thread =
+        std::thread::Builder::new().name(format!("camera-{}", cam.unit_id)).spawn(move || worker.run()).expect("spawn camera thread");
+    let station =
+        Station { unit_id: cam.unit_id, handshake: handshake.clone(), commands: commands.clone(), last_writer: Mutex::new((None, None)) };
+    let handle = CameraHandle {
+        unit_id: cam.unit_id,
+        name: cam.name.clone(),
+        handshake,
+        live,
+        job: shared,
+        robot: robot_link.as_ref().map(|l| l.3.clone()),
+        archive: shelf,
+        history: history_shelf,
+        changes: common.changes.clone(),
+        started: common.started,
+        genicam,
+        commands,
+        orders,
+        jobs: cam.jobs.iter().map(|j| (j.id, j.name.clone())).collect(),
+        published,
+        thread: Mutex::new(Some(thread)),
+    };
+    Ok(Wired { handle, station, robot_link })
+}
+
+/// The PLC's Modbus/TCP server, listening: its address, its counters and its task.
+async fn serve_modbus(
+    cfg: &Config,
+    stations: &Arc<Stations>,
+    shutdown: &CancellationToken,
+    cameras: usize,
+) -> Result<(SocketAddr, Arc<Stats>, tokio::task::JoinHandle<()>), StartError> {
     let listener = TcpListener::bind(cfg.modbus.bind).await.map_err(|source| StartError::Bind { addr: cfg.modbus.bind, source })?;
     let modbus_addr = listener.local_addr().map_err(|source| StartError::Bind { addr: cfg.modbus.bind, source })?;
     tracing::info!(
-        "Modbus/TCP server on {modbus_addr} ({} camera(s), max {} clients, idle timeout {} s)",
-        cameras.len(),
+        "Modbus/TCP server on {modbus_addr} ({cameras} camera(s), max {} clients, idle timeout {} s)",
         cfg.modbus.max_connections,
         cfg.modbus.idle_timeout.as_secs_f64()
     );
-    let shutdown = CancellationToken::new();
     let stats = Arc::new(Stats::default());
     let settings = server::Settings {
         max_connections: cfg.modbus.max_connections,
@@ -284,35 +320,32 @@ pub async fn start(cfg: &Config) -> Result<Running, StartError> {
         frame_timeout: cfg.modbus.frame_timeout,
         write_allow: cfg.modbus.write_allow.clone(),
     };
-    let mut tasks = vec![tokio::spawn(server::serve(listener, stations.clone(), settings, stats.clone(), shutdown.clone()))];
-    // Heartbeat (and robot-link state) into every camera's registers.
-    {
-        let (stations, shutdown) = (stations.clone(), shutdown.clone());
-        let robot_views: Vec<_> = cameras.iter().map(|c| (c.handshake.clone(), c.robot.clone())).collect();
-        tasks.push(tokio::spawn(async move {
-            let mut iv = tokio::time::interval(Duration::from_millis(100));
-            loop {
-                tokio::select! {
-                    _ = shutdown.cancelled() => break,
-                    _ = iv.tick() => {}
-                }
-                let t = stations.since_start();
-                for (hs, robot) in &robot_views {
-                    let view = robot.as_ref().map(|r| *r.lock().unwrap_or_else(|p| p.into_inner()));
-                    let mut hs = hs.lock().unwrap_or_else(|p| p.into_inner());
-                    hs.tick(t);
-                    if let Some(v) = view {
-                        hs.set_robot(v);
-                    }
+    let task = tokio::spawn(server::serve(listener, stations.clone(), settings, stats.clone(), shutdown.clone()));
+    Ok((modbus_addr, stats, task))
+}
+
+/// The heartbeat (and the robot link's state) into every camera's registers, every 100 ms.
+fn heartbeat(stations: &Arc<Stations>, cameras: &[CameraHandle], shutdown: &CancellationToken) -> tokio::task::JoinHandle<()> {
+    let (stations, shutdown) = (stations.clone(), shutdown.clone());
+    let robot_views: Vec<_> = cameras.iter().map(|c| (c.handshake.clone(), c.robot.clone())).collect();
+    tokio::spawn(async move {
+        let mut iv = tokio::time::interval(Duration::from_millis(100));
+        loop {
+            tokio::select! {
+                _ = shutdown.cancelled() => break,
+                _ = iv.tick() => {}
+            }
+            let t = stations.since_start();
+            for (hs, robot) in &robot_views {
+                let view = robot.as_ref().map(|r| *r.lock().unwrap_or_else(|p| p.into_inner()));
+                let mut hs = hs.lock().unwrap_or_else(|p| p.into_inner());
+                hs.tick(t);
+                if let Some(v) = view {
+                    hs.set_robot(v);
                 }
             }
-        }));
-    }
-    for (name, rc, rx, view, _hs) in robot_links {
-        tasks.push(tokio::spawn(crate::robot::link::run(name, rc, rx, view, shutdown.clone())));
-    }
-    let cameras = Arc::new(cameras);
-    Ok(Running { modbus_addr, http_addr: None, opcua_url: None, cameras, stations, stats, started, shutdown, stop, tasks })
+        }
+    })
 }
 
 /// Why a write from the operator view did not happen.
@@ -334,6 +367,19 @@ pub enum ControlError {
 }
 
 impl CameraHandle {
+    /// The job in force: its templates, the estimator on them, its calibration.
+    pub fn job(&self) -> Arc<camera::InForce> {
+        self.job.read().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+
+    /// Enrols a part of the current frame (see [`enrol`]): the camera's worker does it between
+    /// two frames and puts the job with the new template in force.
+    pub async fn enrol(&self, req: EnrolRequest) -> Result<Enrolled, EnrolError> {
+        let (reply, answer) = tokio::sync::oneshot::channel();
+        self.orders.send(camera::Order::Enrol(req, reply)).map_err(|_| EnrolError::Stopped)?;
+        answer.await.map_err(|_| EnrolError::Stopped)?
+    }
+
     /// Writes one register as a PLC's FC6 would (the same checks, the same handshake, the same
     /// commands to the worker), for the operator view's commissioning controls: what the page
     /// does, the PLC sees, and nothing the PLC could not do.

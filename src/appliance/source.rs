@@ -34,6 +34,17 @@ pub enum SourceError {
     Unusable(String),
 }
 
+impl SourceError {
+    /// The ERROR the acquisition raises: a frame that came but cannot be used is the frame's
+    /// fault, anything else the camera's.
+    pub fn fault(&self) -> crate::handshake::Fault {
+        match self {
+            SourceError::Unusable(_) => crate::handshake::Fault::Frame,
+            SourceError::Timeout(_) | SourceError::Camera(_) => crate::handshake::Fault::Camera,
+        }
+    }
+}
+
 /// A camera.
 pub trait Source: Send {
     /// The frame for a trigger, waiting at most the source's timeout.
@@ -321,6 +332,14 @@ impl Source for VideoSource {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_unusable_frame_is_the_frames_fault_and_anything_else_the_cameras() {
+        use crate::handshake::Fault;
+        assert_eq!(SourceError::Unusable("corrupt".into()).fault(), Fault::Frame);
+        assert_eq!(SourceError::Timeout(500).fault(), Fault::Camera);
+        assert_eq!(SourceError::Camera("gone".into()).fault(), Fault::Camera);
+    }
 
     #[test]
     fn dir_source_takes_each_complete_file_once_and_files_bad_ones() {

@@ -446,7 +446,7 @@ async fn frame_jpg(State(state): State<AppState>, Path(unit): Path<u8>, Query(q)
     if q.grid {
         // Drawn for each request: only a commissioning engineer asks for it.
         let (frame, estimate, _) = snapshot();
-        let calibration = cam.job.lock().unwrap_or_else(|p| p.into_inner()).calibration.clone();
+        let calibration = cam.job().calibration.clone();
         return Ok(jpeg(live_picture(cam, frame, estimate, Some(calibration)).await?));
     }
     let slot = state.cameras.iter().position(|c| std::ptr::eq(c, cam)).and_then(|i| state.pictures.get(i));
@@ -473,12 +473,12 @@ async fn live_picture(
     grid: Option<crate::calibration::Calibration>,
 ) -> Result<axum::body::Bytes, Failure> {
     let (Some(frame), Some(estimate)) = (frame, estimate) else { return Err((StatusCode::NOT_FOUND, "no frame yet".into())) };
-    let estimator = cam.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
+    let job = cam.job();
     let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, Failure> {
         let fail = |e: opencv::Error| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string());
         let scale = (960.0 / frame.width as f64).min(1.0);
         let view = frame.view().map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
-        let mut pic = crate::overlay::draw(view, &estimate, &estimator, scale).map_err(fail)?;
+        let mut pic = crate::overlay::draw(view, &estimate, &job.estimator, scale).map_err(fail)?;
         if let Some(c) = &grid {
             crate::overlay::draw_grid(&mut pic, c, frame.width, frame.height, scale).map_err(fail)?;
         }
@@ -503,9 +503,8 @@ struct TemplateView {
 async fn templates(State(state): State<AppState>, Path(unit): Path<u8>) -> Result<Response, Failure> {
     let cam = camera(&state, unit)?;
     let list: Vec<TemplateView> = cam
+        .job()
         .templates
-        .lock()
-        .unwrap_or_else(|p| p.into_inner())
         .entries
         .iter()
         .enumerate()
@@ -536,21 +535,21 @@ pub struct AlikeView {
 async fn alike(State(state): State<AppState>, Path(unit): Path<u8>) -> Result<Response, Failure> {
     let cam = camera(&state, unit)?;
     let k = state.cameras.iter().position(|c| c.unit_id == unit).expect("found above");
-    let kb = cam.templates.lock().unwrap_or_else(|p| p.into_inner()).clone();
-    let key = views::templates_key(&kb);
+    let job = cam.job();
+    let key = views::templates_key(&job.templates);
     let mut cached = state.alike[k].lock().await;
     if let Some((have, list)) = cached.as_ref()
         && *have == key
     {
         return Ok(axum::Json(list.as_ref()).into_response());
     }
-    let params = cam.estimator.read().unwrap_or_else(|p| p.into_inner()).params().clone();
-    let mm_per_px = {
-        let j = cam.job.lock().unwrap_or_else(|p| p.into_inner());
-        mm_per_px(&j.calibration)
-    };
+    let mm_per_px = mm_per_px(&job.calibration);
     let list = tokio::task::spawn_blocking(move || {
-        kb.alike(&params, None).into_iter().map(|pair| AlikeView { text: pair.describe(mm_per_px), pair }).collect::<Vec<_>>()
+        job.templates
+            .alike(job.estimator.params(), None)
+            .into_iter()
+            .map(|pair| AlikeView { text: pair.describe(mm_per_px), pair })
+            .collect::<Vec<_>>()
     })
     .await
     .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
@@ -605,7 +604,7 @@ async fn history_frame(
     let cam = camera(&state, unit)?;
     let entry =
         cam.history.as_ref().and_then(|h| h.get(id)).ok_or((StatusCode::NOT_FOUND, format!("acquisition {id} is no longer kept")))?;
-    let estimator = cam.estimator.read().unwrap_or_else(|p| p.into_inner()).clone();
+    let job = cam.job();
     let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, Failure> {
         use opencv::prelude::*;
         let internal = |e: String| (StatusCode::INTERNAL_SERVER_ERROR, e);
@@ -613,7 +612,7 @@ async fn history_frame(
         let gray = picture.view().map_err(|e| internal(e.to_string()))?.as_mat().map_err(|e| internal(e.to_string()))?;
         let img = match &entry.estimate {
             Some(fe) => {
-                let templates: Vec<_> = estimator.templates().collect();
+                let templates: Vec<_> = job.estimator.templates().collect();
                 crate::overlay::annotate_gray(&gray, fe, &templates, entry.scale, q.part).map_err(|e| internal(e.to_string()))?
             }
             None => {
@@ -771,9 +770,8 @@ async fn archive_file(State(state): State<AppState>, Path((unit, file)): Path<(u
 async fn template_png(State(state): State<AppState>, Path((unit, index)): Path<(u8, usize)>) -> Result<Response, Failure> {
     let cam = camera(&state, unit)?;
     let t = cam
+        .job()
         .templates
-        .lock()
-        .unwrap_or_else(|p| p.into_inner())
         .entries
         .get(index)
         .map(|e| e.template.clone())
@@ -841,7 +839,7 @@ async fn enroll(
         by: format!("operator view ({peer})"),
         acq_id: req.acq_id,
     };
-    let done = cam.enrol(&request).map_err(|e| {
+    let done = cam.enrol(request).await.map_err(|e| {
         let status = if e.is_request() {
             StatusCode::BAD_REQUEST
         } else if e.is_conflict() {

@@ -278,11 +278,9 @@ pub fn camera_view(c: &CameraHandle) -> CameraView {
         let hs = c.handshake.lock().unwrap_or_else(|p| p.into_inner());
         (hs.read(0, map::SIZE), hs.settings().word_order)
     };
+    let in_force = c.job();
     let job = {
-        let (name, calibration) = {
-            let j = c.job.lock().unwrap_or_else(|p| p.into_inner());
-            (j.name.clone(), calibration_view(&j.calibration))
-        };
+        let (name, calibration) = (in_force.name.clone(), calibration_view(&in_force.calibration));
         let status = map::lookup(map::addr::JOB_STATUS).and_then(|r| code_word(r, words[map::addr::JOB_STATUS as usize])).unwrap_or("?");
         JobView {
             id: words[map::addr::JOB_ID as usize],
@@ -294,8 +292,8 @@ pub fn camera_view(c: &CameraHandle) -> CameraView {
         }
     };
     let (templates_key, names): (String, Vec<(u16, String)>) = {
-        let kb = c.templates.lock().unwrap_or_else(|p| p.into_inner());
-        (templates_key(&kb), kb.entries.iter().map(|e| (e.template.type_id, e.template.type_name.clone())).collect())
+        let kb = &in_force.templates;
+        (templates_key(kb), kb.entries.iter().map(|e| (e.template.type_id, e.template.type_name.clone())).collect())
     };
     let type_name = |id: u16| names.iter().find(|(i, _)| *i == id).map(|(_, n)| n.clone());
     let (history_kept, history_dropped, frame_interval_s) = match &c.history {

@@ -107,6 +107,24 @@ pub struct PartEstimate {
 }
 
 impl PartEstimate {
+    /// Moves everything the part holds in pixels by `by`: its position, outline, line features
+    /// and the matched template's pose (the overlay draws them, a calibration registers the
+    /// template again from that pose).
+    pub fn shift(&mut self, by: Pt) {
+        self.x += by.x;
+        self.y += by.y;
+        for q in &mut self.outline {
+            *q = *q + by;
+        }
+        for s in self.segments.iter_mut().chain(self.axis.as_mut()) {
+            s.a = s.a + by;
+            s.b = s.b + by;
+        }
+        if let Some((_, pose)) = &mut self.matched {
+            pose.to = pose.to + by;
+        }
+    }
+
     /// The decision and its numbers as text, for logs and the operator's "why".
     pub fn detail(&self) -> String {
         if self.reason == self.decision.verdict.reason() {
@@ -366,6 +384,22 @@ impl Estimator {
         let reg = register::register(outline, &e.index, init, self.tolerance(entry, 0.0), 1);
         let p = reg.pose;
         (p.to.x.is_finite() && p.to.y.is_finite() && p.angle_rad.is_finite() && p.scale.is_finite()).then_some(p)
+    }
+
+    /// The estimate of a frame, or of its region of interest `[x, y, width, height]` with every
+    /// part's pixels moved back into the whole frame's. A region that does not fit the frame
+    /// (or leaves less than [`MIN_SIDE`] a side) is an error naming both: a camera whose
+    /// resolution was changed under a configured ROI.
+    pub fn estimate_in(&self, img: &GrayImage, roi: Option<[usize; 4]>) -> Result<FrameEstimate, FrameError> {
+        let Some([x, y, w, h]) = roi else { return self.estimate(img.view()?) };
+        let misfit = FrameError::Roi { roi: [x, y, w, h], width: img.width, height: img.height };
+        let crop = img.crop(x, y, w, h).filter(|c| c.width >= MIN_SIDE && c.height >= MIN_SIDE).ok_or(misfit)?;
+        let mut fe = self.estimate(crop.view()?)?;
+        let shift = Pt::new(x as f64, y as f64);
+        for p in &mut fe.parts {
+            p.shift(shift);
+        }
+        Ok(fe)
     }
 
     /// Estimates every part in the frame.
