@@ -289,22 +289,47 @@ impl Simulator {
         }
         let mut rng = ChaCha8Rng::seed_from_u64(self.cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index);
         let scale = self.px_per_mm * rng.random_range(0.975..1.025);
-        let mut light = Lighting {
-            exposure: rng.random_range(0.85..1.0),
-            gradient: rng.random_range(0.0..0.12),
-            gradient_dir_deg: rng.random_range(0.0..360.0),
-            glare: None,
-            blur_sigma: if rng.random_bool(0.5) { rng.random_range(0.0..1.1) } else { 0.0 },
-            noise_sigma: rng.random_range(0.5..4.0),
-            belt_gray: rng.random_range(48.0..62.0),
+        let mut light = lighting(&mut rng);
+        let parts = self.arrange(&mut rng, index, condition, scale, &mut light);
+        if let Some(n) = self.cfg.noise {
+            light.noise_sigma = n;
+        }
+        let scene_parts = self.with_debris(index, condition, scale, &parts);
+        let mut debris: Vec<Pt> = scene_parts[parts.len()..].iter().map(|(_, pl)| Pt::new(pl.x, pl.y)).collect();
+        let mut image = render::render(self.cfg.width, self.cfg.height, &scene_parts, &light, &mut rng)?;
+        if let Some(o) = &self.optics {
+            image = o.image(&image)?;
+            debris.iter_mut().for_each(|d| *d = o.to_frame(*d));
+        }
+        let name = format!("s{index:05}_{condition}");
+        let visible = render::visible_fractions(self.cfg.width, self.cfg.height, &parts)?;
+        let truth = TruthRecord {
+            image: format!("images/{name}.png"),
+            condition: condition.to_string(),
+            noise_sigma: r3(light.noise_sigma),
+            parts: parts.iter().zip(&visible).map(|((p, pl), v)| self.truth_of(p, pl, *v)).collect(),
         };
+        let extra = SceneExtra {
+            blur_sigma: r3(light.blur_sigma),
+            exposure: r4(light.exposure),
+            scale_px_per_mm: r4(scale),
+            width: self.cfg.width,
+            height: self.cfg.height,
+            debris: debris.len(),
+        };
+        Ok(Scene { name, image, truth, extra, debris })
+    }
+
+    /// The parts of scene `index` under `condition` at `scale` (px/mm), drawn from `rng`; a
+    /// condition that is about the light (noise, dim, glare) sets it in `light`.
+    fn arrange(&self, rng: &mut ChaCha8Rng, index: u64, condition: &str, scale: f64, light: &mut Lighting) -> Vec<(&Prepared, Placement)> {
         let noise_cycle = [10.0, 20.0, 30.0, 40.0];
         let mut parts: Vec<(&Prepared, Placement)> = Vec::new();
         let known = |rng: &mut ChaCha8Rng| &self.known[rng.random_range(0..self.known.len())];
         match condition {
             "clean" | "glare" | "dim" | "noise" => {
-                let p = known(&mut rng);
-                if let Some(pl) = self.free_spot(&mut rng, p, scale, &parts) {
+                let p = known(rng);
+                if let Some(pl) = self.free_spot(rng, p, scale, &parts) {
                     parts.push((p, pl));
                 }
                 match condition {
@@ -323,20 +348,20 @@ impl Simulator {
             "multi" => {
                 let n = rng.random_range(2..=4);
                 for _ in 0..n {
-                    let p = known(&mut rng);
-                    if let Some(pl) = self.free_spot(&mut rng, p, scale, &parts) {
+                    let p = known(rng);
+                    if let Some(pl) = self.free_spot(rng, p, scale, &parts) {
                         parts.push((p, pl));
                     }
                 }
             }
             "touching" | "overlapping" => {
                 for _ in 0..50 {
-                    let a = known(&mut rng);
-                    let b = known(&mut rng);
-                    let Some(pa) = self.free_spot(&mut rng, a, scale, &[]) else {
+                    let a = known(rng);
+                    let b = known(rng);
+                    let Some(pa) = self.free_spot(rng, a, scale, &[]) else {
                         continue;
                     };
-                    if let Some(pb) = self.neighbour(&mut rng, (a, pa), b, scale, condition == "overlapping") {
+                    if let Some(pb) = self.neighbour(rng, (a, pa), b, scale, condition == "overlapping") {
                         parts = vec![(a, pa), (b, pb)];
                         break;
                     }
@@ -345,25 +370,33 @@ impl Simulator {
             "unknown" => {
                 // One draw more only where there is a choice: the built-in scenes stay as they were.
                 let u = if self.unknown.len() > 1 { &self.unknown[rng.random_range(0..self.unknown.len())] } else { &self.unknown[0] };
-                if let Some(pl) = self.free_spot(&mut rng, u, scale, &parts) {
+                if let Some(pl) = self.free_spot(rng, u, scale, &parts) {
                     parts.push((u, pl));
                 }
                 if rng.random_bool(0.5) {
-                    let p = known(&mut rng);
-                    if let Some(pl) = self.free_spot(&mut rng, p, scale, &parts) {
+                    let p = known(rng);
+                    if let Some(pl) = self.free_spot(rng, p, scale, &parts) {
                         parts.push((p, pl));
                     }
                 }
             }
             _ => {}
         }
-        if let Some(n) = self.cfg.noise {
-            light.noise_sigma = n;
-        }
-        // Scenes of several parts also get up to two pieces of debris, clear of the parts, from a
-        // generator of their own (so the parts and light stay those of earlier versions).
+        parts
+    }
+
+    /// The scene's parts and, in scenes of several parts, up to two pieces of debris clear of
+    /// them, from a generator of their own (so that the parts and light stay those of earlier
+    /// versions).
+    fn with_debris<'a>(
+        &'a self,
+        index: u64,
+        condition: &str,
+        scale: f64,
+        parts: &[(&'a Prepared, Placement)],
+    ) -> Vec<(&'a Prepared, Placement)> {
         let mut debris_rng = ChaCha8Rng::seed_from_u64(self.cfg.seed.wrapping_mul(0xD1B5_4A32_D192_ED03) ^ index);
-        let mut scene_parts = parts.clone();
+        let mut scene_parts = parts.to_vec();
         if matches!(condition, "multi" | "touching" | "overlapping") {
             for _ in 0..debris_rng.random_range(0..=2) {
                 let d = &self.debris[debris_rng.random_range(0..self.debris.len())];
@@ -372,55 +405,31 @@ impl Simulator {
                 }
             }
         }
-        let mut debris: Vec<Pt> = scene_parts[parts.len()..].iter().map(|(_, pl)| Pt::new(pl.x, pl.y)).collect();
-        let mut image = render::render(self.cfg.width, self.cfg.height, &scene_parts, &light, &mut rng)?;
+        scene_parts
+    }
+
+    /// A part's ground truth as placed (`visible`: the fraction of it no other part hides); through
+    /// the cell's camera, in the frame's pixels and the robot's millimetres.
+    fn truth_of(&self, p: &Prepared, pl: &Placement, visible: f64) -> TruthPart {
+        let mut t = TruthPart {
+            type_name: p.model.name.to_string(),
+            face: pl.face.as_str().to_string(),
+            angle_deg: r4(pl.angle_deg),
+            x_px: r3(pl.x),
+            y_px: r3(pl.y),
+            visible_fraction: r4(visible),
+            x_mm: None,
+            y_mm: None,
+            robot_angle_deg: None,
+        };
         if let Some(o) = &self.optics {
-            image = o.image(&image)?;
-            debris.iter_mut().for_each(|d| *d = o.to_frame(*d));
+            let flat = Pt::new(pl.x, pl.y);
+            let (f, m) = (o.to_frame(flat), o.to_robot(flat));
+            let (frame_deg, robot_deg) = o.angles(flat, pl.angle_deg);
+            (t.x_px, t.y_px, t.angle_deg) = (r3(f.x), r3(f.y), r4(frame_deg));
+            (t.x_mm, t.y_mm, t.robot_angle_deg) = (Some(r4(m.x)), Some(r4(m.y)), Some(r4(robot_deg)));
         }
-        let name = format!("s{index:05}_{condition}");
-        let r4 = |v: f64| (v * 10000.0).round() / 10000.0;
-        let r3 = |v: f64| (v * 1000.0).round() / 1000.0;
-        let visible = render::visible_fractions(self.cfg.width, self.cfg.height, &parts)?;
-        let truth = TruthRecord {
-            image: format!("images/{name}.png"),
-            condition: condition.to_string(),
-            noise_sigma: r3(light.noise_sigma),
-            parts: parts
-                .iter()
-                .zip(&visible)
-                .map(|((p, pl), v)| {
-                    let mut t = TruthPart {
-                        type_name: p.model.name.to_string(),
-                        face: pl.face.as_str().to_string(),
-                        angle_deg: r4(pl.angle_deg),
-                        x_px: r3(pl.x),
-                        y_px: r3(pl.y),
-                        visible_fraction: r4(*v),
-                        x_mm: None,
-                        y_mm: None,
-                        robot_angle_deg: None,
-                    };
-                    if let Some(o) = &self.optics {
-                        let flat = Pt::new(pl.x, pl.y);
-                        let (f, m) = (o.to_frame(flat), o.to_robot(flat));
-                        let (frame_deg, robot_deg) = o.angles(flat, pl.angle_deg);
-                        (t.x_px, t.y_px, t.angle_deg) = (r3(f.x), r3(f.y), r4(frame_deg));
-                        (t.x_mm, t.y_mm, t.robot_angle_deg) = (Some(r4(m.x)), Some(r4(m.y)), Some(r4(robot_deg)));
-                    }
-                    t
-                })
-                .collect(),
-        };
-        let extra = SceneExtra {
-            blur_sigma: r3(light.blur_sigma),
-            exposure: r4(light.exposure),
-            scale_px_per_mm: r4(scale),
-            width: self.cfg.width,
-            height: self.cfg.height,
-            debris: debris.len(),
-        };
-        Ok(Scene { name, image, truth, extra, debris })
+        t
     }
 
     fn random_pose(&self, rng: &mut ChaCha8Rng, p: &Prepared, scale: f64) -> Option<Placement> {
@@ -492,6 +501,29 @@ fn separation(a: &[Vec<Pt>], b: &[Vec<Pt>]) -> f64 {
         }
     }
     best
+}
+
+/// A scene's light, drawn from `rng`.
+fn lighting(rng: &mut ChaCha8Rng) -> Lighting {
+    Lighting {
+        exposure: rng.random_range(0.85..1.0),
+        gradient: rng.random_range(0.0..0.12),
+        gradient_dir_deg: rng.random_range(0.0..360.0),
+        glare: None,
+        blur_sigma: if rng.random_bool(0.5) { rng.random_range(0.0..1.1) } else { 0.0 },
+        noise_sigma: rng.random_range(0.5..4.0),
+        belt_gray: rng.random_range(48.0..62.0),
+    }
+}
+
+/// Rounded to 4 decimals, as the truth records keep it.
+fn r4(v: f64) -> f64 {
+    (v * 10000.0).round() / 10000.0
+}
+
+/// Rounded to 3 decimals.
+fn r3(v: f64) -> f64 {
+    (v * 1000.0).round() / 1000.0
 }
 
 #[cfg(test)]

@@ -240,8 +240,19 @@ pub fn render(
     light: &Lighting,
     rng: &mut impl Rng,
 ) -> opencv::Result<GrayImage> {
+    let scene = belt(width, height, light, rng)?;
+    let grain = low_freq(width as i32, height as i32, 25.0, rng)?.data_typed::<f32>()?.to_vec();
+    let mut canvas = Canvas { width, height, scene, coverage: vec![0f32; width * height], grain };
+    for (prep, pl) in parts {
+        canvas.lay(prep, pl)?;
+    }
+    canvas.light(light);
+    canvas.finish(light, rng)
+}
+
+/// The empty belt: base gray, cloudy texture, the weave's faint rows, dirt.
+fn belt(width: usize, height: usize, light: &Lighting, rng: &mut impl Rng) -> opencv::Result<Vec<f32>> {
     let (w, h) = (width as i32, height as i32);
-    // Belt: base gray, cloudy texture, the weave's faint rows, dirt.
     let cloud = low_freq(w, h, 90.0, rng)?;
     let row_n = Normal::new(0.0f32, 1.0).expect("unit normal");
     let rows: Vec<f32> = (0..h).map(|_| row_n.sample(rng)).collect();
@@ -279,11 +290,25 @@ pub fn render(
             *s -= v as f32 * 0.12;
         }
     }
-    let grain = low_freq(w, h, 25.0, rng)?;
-    let grain = grain.data_typed::<f32>()?.to_vec();
-    let mut coverage = vec![0f32; width * height];
+    Ok(scene)
+}
 
-    for (prep, pl) in parts {
+/// A frame being rendered: gray levels as floats, how much part material covers each pixel
+/// (glare shines on parts only), and the parts' surface grain.
+struct Canvas {
+    width: usize,
+    height: usize,
+    scene: Vec<f32>,
+    coverage: Vec<f32>,
+    grain: Vec<f32>,
+}
+
+impl Canvas {
+    /// Lays one part on what is there: its material with the visible face's features, bevel
+    /// and rounded edge, and its soft shadow on whatever lies below.
+    fn lay(&mut self, prep: &Prepared, pl: &Placement) -> opencv::Result<()> {
+        let (width, w, h) = (self.width, self.width as i32, self.height as i32);
+        let (scene, coverage, grain) = (&mut self.scene, &mut self.coverage, &self.grain);
         let polys = prep.material_polys(pl);
         let all: Vec<Pt> = polys.iter().flatten().copied().collect();
         let (lo, hi) = crate::vision::geometry::bounds(&all);
@@ -376,36 +401,46 @@ pub fn render(
                 }
             }
         }
+        Ok(())
     }
 
-    // Lighting.
-    let dir = light.gradient_dir_deg.to_radians();
-    let (dx, dy) = (dir.cos() as f32, dir.sin() as f32);
-    let half = (width.max(height) as f32) / 2.0;
-    for y in 0..height {
-        for x in 0..width {
-            let i = y * width + x;
-            let ramp = ((x as f32 - width as f32 / 2.0) * dx + (y as f32 - height as f32 / 2.0) * dy) / half;
-            let mut v = scene[i] * light.exposure as f32 * (1.0 + light.gradient as f32 * ramp);
-            if let Some((c, r, amp)) = light.glare {
-                let d2 = (x as f64 - c.x).powi(2) + (y as f64 - c.y).powi(2);
-                if d2 < 9.0 * r * r {
-                    v += (amp * (-d2 / (2.0 * r * r)).exp()) as f32 * coverage[i];
+    /// The light: exposure, a gradient across the frame, and glare on the parts.
+    fn light(&mut self, light: &Lighting) {
+        let (width, height, scene, coverage) = (self.width, self.height, &mut self.scene, &self.coverage);
+        let dir = light.gradient_dir_deg.to_radians();
+        let (dx, dy) = (dir.cos() as f32, dir.sin() as f32);
+        let half = (width.max(height) as f32) / 2.0;
+        for y in 0..height {
+            for x in 0..width {
+                let i = y * width + x;
+                let ramp = ((x as f32 - width as f32 / 2.0) * dx + (y as f32 - height as f32 / 2.0) * dy) / half;
+                let mut v = scene[i] * light.exposure as f32 * (1.0 + light.gradient as f32 * ramp);
+                if let Some((c, r, amp)) = light.glare {
+                    let d2 = (x as f64 - c.x).powi(2) + (y as f64 - c.y).powi(2);
+                    if d2 < 9.0 * r * r {
+                        v += (amp * (-d2 / (2.0 * r * r)).exp()) as f32 * coverage[i];
+                    }
                 }
+                scene[i] = v;
             }
-            scene[i] = v;
         }
     }
-    let mut mat = Mat::new_rows_cols_with_data(h, w, &scene)?.try_clone()?;
-    if light.blur_sigma > 0.05 {
-        let mut b = Mat::default();
-        imgproc::gaussian_blur(&mat, &mut b, Size::new(0, 0), light.blur_sigma, light.blur_sigma, core::BORDER_REPLICATE)?;
-        mat = b;
+
+    /// The camera's blur and noise, to 8 bits.
+    fn finish(self, light: &Lighting, rng: &mut impl Rng) -> opencv::Result<GrayImage> {
+        let (width, height, scene) = (self.width, self.height, self.scene);
+        let (w, h) = (width as i32, height as i32);
+        let mut mat = Mat::new_rows_cols_with_data(h, w, &scene)?.try_clone()?;
+        if light.blur_sigma > 0.05 {
+            let mut b = Mat::default();
+            imgproc::gaussian_blur(&mat, &mut b, Size::new(0, 0), light.blur_sigma, light.blur_sigma, core::BORDER_REPLICATE)?;
+            mat = b;
+        }
+        let noise = Normal::new(0.0f32, light.noise_sigma.max(0.0) as f32).expect("noise sigma is finite");
+        let data = mat.data_typed::<f32>()?;
+        let out: Vec<u8> = data.iter().map(|&v| (v + noise.sample(rng)).round().clamp(0.0, 255.0) as u8).collect();
+        Ok(GrayImage { data: out, width, height })
     }
-    let noise = Normal::new(0.0f32, light.noise_sigma.max(0.0) as f32).expect("noise sigma is finite");
-    let data = mat.data_typed::<f32>()?;
-    let out: Vec<u8> = data.iter().map(|&v| (v + noise.sample(rng)).round().clamp(0.0, 255.0) as u8).collect();
-    Ok(GrayImage { data: out, width, height })
 }
 
 /// Fraction of each part's material that no later-drawn part lies on (parts are drawn in order,
