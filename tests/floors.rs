@@ -227,3 +227,42 @@ fn the_floors_of_architecture_md_are_the_crates_imports() {
     problems.extend(check(&floors(&doc, "### Floors inside `vision`"), &inside, "vision"));
     assert!(problems.is_empty(), "ARCHITECTURE.md's floors and the imports disagree:\n{}", problems.join("\n"));
 }
+
+/// The invariants ARCHITECTURE.md states as what a module may not know, checked on its code
+/// (comments and tests left out): each module, and the words that would break its invariant.
+#[test]
+fn the_negative_invariants_of_architecture_md_hold() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let doc = std::fs::read_to_string(root.join("ARCHITECTURE.md")).expect("ARCHITECTURE.md");
+    let mods = modules(&root.join("src"));
+    let files = ["std::fs", "File::", "read_to_string", "std::net"];
+    let rules: &[(&str, &str, &[&str])] = &[
+        (
+            "vision",
+            "`vision` knows nothing about Modbus, tokio, TOML or files.",
+            &["tokio", "toml", "modbus", "registers", "std::fs", "File::", "std::net"],
+        ),
+        ("registers", "`registers` is pure data", &["tokio", "std::fs", "std::net", "Instant::now", "Mutex"]),
+        ("handshake", "`handshake` knows no\nsockets and no clock", &["tokio", "std::net", "Instant::now", "SystemTime::now"]),
+        ("robot", "`robot::Link` knows no\nsockets and no clock", &["tokio", "std::net", "Instant::now", "SystemTime::now"]),
+        ("eval", "`eval` does no I/O.", &files),
+        ("appliance", "`appliance` knows no HTTP", &["axum", "crate::http", "tower"]),
+        ("opcua", "`opcua` knows no HTTP", &["axum", "crate::http"]),
+    ];
+    let mut problems = Vec::new();
+    for (module, said, words) in rules {
+        assert!(doc.contains(said), "ARCHITECTURE.md no longer says {said:?}: update this test with it");
+        // The module itself and, for a folder, everything in it (robot's driver, `robot::link`,
+        // is the one shell the rule leaves out).
+        let inside = mods.iter().filter(|(m, _)| *m == module || (m.starts_with(&format!("{module}::")) && *m != "robot::link"));
+        for (m, text) in inside {
+            let code = code(text);
+            for w in *words {
+                if code.contains(w) {
+                    problems.push(format!("{m} uses {w:?}, but ARCHITECTURE.md says {said:?}"));
+                }
+            }
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
