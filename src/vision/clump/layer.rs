@@ -7,9 +7,8 @@ use opencv::core::Mat;
 use super::super::geometry::Affine;
 use super::super::shape::EdgeTest;
 use super::super::template::Library;
+use super::found::{Found, Probe, Region};
 use super::mask::{at_mask, erode};
-use super::verify::Probe;
-use super::{Found, Region};
 
 /// For every pair of the `keep` parts that overlap (by their `masks`), which lies on top: the
 /// lower one's `under` names the upper, or both are `order_unclear`. An upper part's outline

@@ -5,7 +5,7 @@ use opencv::imgproc;
 use opencv::prelude::*;
 
 use super::super::geometry::{Pt, area_centroid};
-use super::Region;
+use super::found::Region;
 
 /// Connected pieces of the region's material that none of `masks` explains, at least
 /// `min_area` frame pixels each: (area, centroid).

@@ -8,7 +8,7 @@ use opencv::prelude::*;
 use super::super::detect::Blob;
 use super::super::geometry::Pt;
 use super::super::template::Library;
-use super::{Found, Region};
+use super::found::{Found, Region};
 
 /// The stretch of the region's outline (`scene`) that no part `found` so far explains: outside
 /// the found parts' material (`masks`) grown by twice the widest tolerance (a region outline

@@ -15,71 +15,22 @@
 //! The decisions (accept, `covered`, `touching/overlapping`) are the estimator's; this module
 //! only finds and measures.
 
+mod found;
 mod layer;
 mod leftover;
 mod mask;
 mod verify;
 mod vote;
 
+pub use found::{Explained, Found, MIN_SUPPORT, Region};
+
 use opencv::core::{self, Mat};
 
-use super::detect::{Blob, Coarse};
-use super::geometry::{Pt, Similarity};
-use super::register::Registration;
+use super::geometry::Similarity;
 use super::shape::{MODEL_VOTE_STRIDE, oriented_points};
 use super::template::Library;
-use verify::{Look, Probe};
+use verify::Look;
 use vote::Vote;
-
-/// What the region offers as evidence.
-pub struct Region<'a> {
-    /// The frame's coarse stage (decimated, blurred frame for the edge tests).
-    pub coarse: &'a Coarse,
-    /// The region.
-    pub blob: &'a Blob,
-    /// The region's refined outline, frame pixels.
-    pub outline: &'a [Pt],
-    /// Frame noise, gray levels.
-    pub noise: f64,
-    /// Part-to-belt contrast along the region's outline, gray levels.
-    pub contrast: f64,
-}
-
-/// A part found in a region.
-#[derive(Debug, Clone)]
-pub struct Found {
-    /// Index of the template in the library.
-    pub entry: usize,
-    /// The registration at its pose.
-    pub reg: Registration,
-    /// The outline tolerance used, template pixels.
-    pub tolerance: f64,
-    /// Length fraction of the template's outline explained by the image at the pose.
-    pub support: f64,
-    /// Index (into [`Explained::parts`]) of a part found lying on this one.
-    pub under: Option<usize>,
-    /// Overlaps another part found here, and the image cannot tell which lies on top.
-    pub order_unclear: bool,
-    /// Another template explaining the same material nearly as well: (entry, its registration,
-    /// support).
-    pub rival: Option<(usize, Registration, f64)>,
-    /// Verification points.
-    points: Vec<Probe>,
-}
-
-/// Everything found in a region.
-#[derive(Debug, Clone, Default)]
-pub struct Explained {
-    /// The parts found, best supported first.
-    pub parts: Vec<Found>,
-    /// Material of the region that no found part explains: (area in frame pixels, centroid).
-    pub leftover: Vec<(f64, Pt)>,
-    /// Wall time of the vote, milliseconds (the rest of the region's time is verification).
-    pub vote_ms: f64,
-}
-
-/// Least support for a hypothesis to stand for a physical part at all.
-pub const MIN_SUPPORT: f64 = 0.7;
 
 /// Finds and verifies the parts in a region. `tolerance(entry)` is the outline tolerance of that
 /// template at this frame's noise, as the single-part path uses it.

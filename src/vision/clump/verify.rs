@@ -6,7 +6,7 @@ use super::super::geometry::{Affine, Pt, Similarity, angle_diff_deg};
 use super::super::register::{self, OutlineIndex};
 use super::super::shape::{EdgeTest, ShapeModel};
 use super::super::template::Library;
-use super::{Found, MIN_SUPPORT, Region};
+use super::found::{Found, MIN_SUPPORT, Probe, Region};
 
 /// Least cosine between a template point's normal and the region's outline there (and the
 /// offset between them) for a deviation beyond the tolerance to count as the same outline moved.
@@ -84,31 +84,6 @@ impl<'a> Look<'a> {
             rival: None,
             points,
         })
-    }
-}
-
-/// One verification point of a template's outline at a hypothesised pose.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct Probe {
-    /// Frame position.
-    pub(super) at: Pt,
-    /// The outline's outward unit normal there.
-    normal: Pt,
-    /// Explained: on the region's outline, or a clear edge across the outline there.
-    pub(super) seen: bool,
-    /// Gray-level step across the outline there, inside minus outside (see
-    /// [`EdgeTest::across`]); measured where the region's outline does not explain the point,
-    /// otherwise NaN until [`Probe::across`] measures it (only where another part lies).
-    pub(super) across: f64,
-}
-
-impl Probe {
-    /// The step across the outline here, measured once.
-    pub(super) fn across(&mut self, edge: &EdgeTest<'_>) -> f64 {
-        if self.across.is_nan() {
-            self.across = edge.across(self.at, self.normal);
-        }
-        self.across
     }
 }
 
