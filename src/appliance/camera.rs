@@ -14,8 +14,8 @@ use crate::config::Trigger;
 use crate::handshake::{Command, Fault, Handshake, JobOutcome, Outcome, PartResult, Queued};
 use crate::vision::{FrameEstimate, GrayImage, PartEstimate};
 
-/// The job in force as everyone but the worker sees it: read, never written (the worker puts a
-/// new job in force whole, see [`Worker`]).
+/// The job in force as everyone but the worker sees it: read, never written (the camera worker
+/// puts a new job in force whole).
 pub type SharedJob = Arc<std::sync::RwLock<Arc<InForce>>>;
 
 /// What the worker is asked to do besides the PLC's commands, with where the answer goes.

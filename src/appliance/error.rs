@@ -8,7 +8,7 @@ pub enum StartError {
     /// Its knowledge base cannot be loaded.
     #[error("camera {camera}: knowledge base")]
     Kb {
-        /// The camera ("camera[0] (line 1)").
+        /// The camera (`camera[0] (line 1)`).
         camera: String,
         /// What is wrong with the file.
         source: crate::kb::KbError,

@@ -164,7 +164,7 @@ fn drop_border_specks(edges: &mut Mat, closing: i32) -> Result<(), FrameError> {
     Ok(())
 }
 
-/// Whether an edge chain larger than a speck (see [`BORDER_SPECK`]) comes within the closing's
+/// Whether an edge chain larger than a speck (`BORDER_SPECK`) comes within the closing's
 /// reach of the image's edge: in a template image, a part the edge cuts. Its region may not
 /// touch the border at all: the cut outline is an open chain that encloses nothing, and the
 /// largest region found is then something inside the part.

@@ -355,7 +355,7 @@ pub fn register(part: &[Pt], tmpl: &OutlineIndex, init: Similarity, tolerance: f
     measure(part, tmpl, pose, tolerance, stride)
 }
 
-/// [`register`], giving up once the pose is within [`GIVE_UP_REACH`] of its answer if fewer
+/// [`register`], giving up once the pose is within `GIVE_UP_REACH` of its answer if fewer
 /// than `least` of the part's points lie that close to the template: an outline that is mostly
 /// something else (a region of several parts) will not fit, and the rest of the iterations on
 /// every point would only measure how badly. Err holds the pose so far, measured on every

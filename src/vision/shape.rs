@@ -194,7 +194,7 @@ const INTERIOR_MARGIN: f64 = 12.0;
 const INTERIOR_MAX: usize = 1500;
 
 /// The edges inside a part (holes, pockets, bosses, ribs) as the coarse stage sees them: points
-/// of the decimated Canny edges at least [`INTERIOR_MARGIN`] inside `outline`, each with the
+/// of the decimated Canny edges at least `INTERIOR_MARGIN` (12 px) inside `outline`, each with the
 /// unit normal pointing from the brighter side to the darker, kept where the step across is at
 /// least a third of the part's contrast against the belt (the features any frame of this part
 /// shows, not its surface's texture). Which of two overlapping parts lies on top is seen most
