@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use super::enrol::{EnrolError, EnrolRequest, Enrolled, Shown};
-pub use super::job::InForce;
+use super::job::InForce;
 use super::source::{Source, SourceError};
 use crate::config::Trigger;
 use crate::handshake::{Command, Fault, Handshake, JobOutcome, Outcome, PartResult, Queued};

@@ -146,7 +146,7 @@ pub fn enrol(job: &InForce, shown: Shown, req: &EnrolRequest) -> Result<(InForce
     let part = estimate.parts.get(req.part.wrapping_sub(1)).ok_or(EnrolError::NoPart { part: req.part, count: estimate.parts.len() })?;
     let crop = crop_part(&frame, &part.outline).ok_or(EnrolError::AtBorder { part: req.part })?;
     let view = crop.view().map_err(|e| EnrolError::Template { part: req.part, source: e.into() })?;
-    let (template, left_out) = Template::learn(view, &req.type_name, req.id, req.face, None, &job.params)
+    let (template, left_out) = Template::learn(view, &req.type_name, req.id, req.face, None, job.estimator.params())
         .map_err(|source| EnrolError::Template { part: req.part, source })?;
     if let Some(l) = left_out {
         tracing::warn!(part = req.part, type_name = %req.type_name, "enrolment: {l}");

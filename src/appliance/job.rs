@@ -23,8 +23,6 @@ pub struct InForce {
     pub roi: Option<[usize; 4]>,
     /// The type the PLC expects under it, if any.
     pub expected_type: Option<u16>,
-    /// The parameters its estimator was built with.
-    pub params: Params,
     /// Pixels to robot millimetres (the operator view shows it and draws its grid).
     pub calibration: Calibration,
     /// Its templates and where each came from.
@@ -41,14 +39,13 @@ impl InForce {
 
     /// The same job with other templates (an enrolment), its estimator built on them.
     pub fn with_templates(&self, templates: KnowledgeBase) -> Result<InForce, EstimatorError> {
-        let estimator = Estimator::new(&templates.templates(), self.params.clone())?;
+        let estimator = Estimator::new(&templates.templates(), self.estimator.params().clone())?;
         Ok(InForce {
             id: self.id,
             name: self.name.clone(),
             kb: self.kb.clone(),
             roi: self.roi,
             expected_type: self.expected_type,
-            params: self.params.clone(),
             calibration: self.calibration.clone(),
             templates,
             estimator,
@@ -91,7 +88,7 @@ pub fn load_job(camera: &str, job: &JobConfig, source: &SourceConfig, base: &Par
         }
     };
     let estimator =
-        Estimator::new(&kb.templates(), params.clone()).map_err(|source| StartError::Estimator { camera: camera.to_string(), source })?;
+        Estimator::new(&kb.templates(), params).map_err(|source| StartError::Estimator { camera: camera.to_string(), source })?;
     let calibration =
         Calibration::from_config(&job.calibration).map_err(|source| StartError::Calibration { camera: camera.to_string(), source })?;
     let job = InForce {
@@ -100,7 +97,6 @@ pub fn load_job(camera: &str, job: &JobConfig, source: &SourceConfig, base: &Par
         kb: job.kb.clone(),
         roi: job.roi,
         expected_type: job.expected_type,
-        params,
         calibration,
         templates: kb,
         estimator,

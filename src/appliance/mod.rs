@@ -368,7 +368,7 @@ pub enum ControlError {
 
 impl CameraHandle {
     /// The job in force: its templates, the estimator on them, its calibration.
-    pub fn job(&self) -> Arc<camera::InForce> {
+    pub fn job(&self) -> Arc<InForce> {
         self.job.read().unwrap_or_else(|p| p.into_inner()).clone()
     }
 

@@ -22,7 +22,7 @@ pub(super) struct Look<'a> {
     pub(super) lib: &'a Library,
     outline: &'a [Pt],
     tolerance: &'a dyn Fn(usize) -> f64,
-    pub(super) ext: OutlineIndex,
+    ext: OutlineIndex,
     pub(super) edge: EdgeTest<'a>,
 }
 
