@@ -28,6 +28,8 @@ fn setup() -> (Estimator, Frames) {
         ("four separate parts", (0..).map(|i| sim.scene_with(i, "multi").unwrap()).find(|s| s.truth.parts.len() == 4).unwrap().image),
         ("touching pair", sim.scene_with(0, "touching").unwrap().image),
         ("overlapping pair", sim.scene_with(0, "overlapping").unwrap().image),
+        ("empty belt", sim.scene_with(0, "empty").unwrap().image),
+        ("unknown part", sim.scene_with(0, "unknown").unwrap().image),
     ];
     (est, frames)
 }

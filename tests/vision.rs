@@ -81,6 +81,33 @@ fn an_unknown_part_is_rejected_not_named_after_the_nearest_type() {
     }
 }
 
+/// A part of a type not enrolled, alone, is judged by the single-part look only: no template's
+/// signature comes near it and it is too small to hold two parts, so the region search does not
+/// run (it never found anything in such a region, at four times the cost of the rest). Two of
+/// them touching are large enough for two parts: searched, and still nothing accepted.
+#[test]
+fn an_unknown_part_alone_is_not_searched_for_several_parts_two_touching_are() {
+    let sim = small_sim();
+    let est = Estimator::new(&common::enrolled(&sim), Params::default()).unwrap();
+    let lever = Prepared::new(models::lever());
+    let at = |x: f64| Placement { face: Face::Up, angle_deg: 0.0, x, y: 481.7, px_per_mm: 3.25, gray: 170.0 };
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let alone = render::render(1296, 972, &[(&lever, at(640.3))], &light(2.0), &mut rng).unwrap();
+    let fe = est.estimate(alone.view().unwrap()).unwrap();
+    assert_eq!(fe.parts.len(), 1);
+    assert_eq!(fe.parts[0].reason, Reason::UnknownType, "{}", fe.parts[0].detail());
+    assert_eq!(fe.timings.clump, 0.0, "the region search ran on one unknown part");
+    // The lever is 98 mm long (318 px): side by side, their ends touch.
+    let pair = render::render(1296, 972, &[(&lever, at(440.0)), (&lever, at(756.0))], &light(2.0), &mut rng).unwrap();
+    let fe = est.estimate(pair.view().unwrap()).unwrap();
+    assert!(
+        fe.timings.clump > 0.0,
+        "two unknown parts touching were not searched: {:?}",
+        fe.parts.iter().map(|p| p.detail()).collect::<Vec<_>>()
+    );
+    assert!(fe.parts.iter().all(|p| !p.accepted), "{:?}", fe.parts.iter().map(|p| p.detail()).collect::<Vec<_>>());
+}
+
 #[test]
 fn a_frame_without_parts_yields_no_estimates() {
     let sim = small_sim();

@@ -234,6 +234,7 @@ pub struct Estimator {
     params: Params,
     min_area: f64,
     min_debris_area: f64,
+    min_template_area: f64,
     max_template_area: f64,
 }
 
@@ -252,6 +253,10 @@ struct Looked {
     noise: f64,
     /// The region's line segments down to [`Estimator::least_segment`], when they were found.
     segments: Option<Vec<Segment>>,
+    /// The region's area, frame pixels, and its signature's correlation distance to the
+    /// nearest template, when it was looked at whole.
+    area: f64,
+    nearest: Option<f64>,
 }
 
 /// What the region search saw of a region, for measuring each part it found there.
@@ -313,7 +318,14 @@ impl Estimator {
         let mut params = params;
         params.coarse_factor = params.coarse_factor.min(((min_radius / 45.0) as usize).max(1));
         let min_debris_area = params.debris_fraction * smallest;
-        Ok(Self { lib: Library::new(templates, params.signal_bins), params, min_area, min_debris_area, max_template_area: largest })
+        Ok(Self {
+            lib: Library::new(templates, params.signal_bins),
+            params,
+            min_area,
+            min_debris_area,
+            min_template_area: smallest,
+            max_template_area: largest,
+        })
     }
 
     /// How far (template pixels) a part's outline may lie from template `entry`'s and still be
@@ -418,7 +430,7 @@ impl Estimator {
             let (est, looked) = self.estimate_part(frame, &coarse, blob, noise, &mut tm)?;
             // A region one template cannot explain may hold several parts, or one part whose
             // silhouette came out wrong: look for each part in it by its own evidence.
-            if est.decision.verdict.may_be_several() {
+            if est.decision.verdict.may_be_several() && self.worth_searching(&looked) {
                 let t = Instant::now();
                 let found = self.estimate_region(frame, &coarse, blob, &est, looked, &mut tm)?;
                 tm.clump += ms(t);
@@ -433,6 +445,18 @@ impl Estimator {
         parts.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
         tm.total = ms(t0);
         Ok(FrameEstimate { parts, debris, noise_sigma: noise, timings: tm })
+    }
+
+    /// Whether a region the single-part look could not explain may hold parts the region search
+    /// would find: not when no template's signature comes near it
+    /// ([`Params::far_signature`]) and it is too small to hold two of the smallest parts at the
+    /// smallest scale, side by side. Such a region is one part of a type not enrolled; its
+    /// single-part verdict stands (the unknown part costs a fifth of the search's time).
+    fn worth_searching(&self, looked: &Looked) -> bool {
+        let p = &self.params;
+        let two_parts = 2.0 * self.min_template_area * p.scale_range.0 * p.scale_range.0;
+        let far = looked.nearest.is_some_and(|rms| rms > p.far_signature);
+        !far || looked.area >= two_parts
     }
 
     /// The parts of a region the single-part path rejected as touching or unknown, each found
@@ -639,7 +663,7 @@ impl Estimator {
         let mut m = Measured { border: Some(outline_bounds(&outline, frame)), area: Some(area), ..Measured::default() };
         if let Some(d) = decide::failed(&m, &limits) {
             est.conclude(d);
-            return Ok((est, Looked { contrast, brighter, noise, segments: None }));
+            return Ok((est, Looked { contrast, brighter, noise, segments: None, area, nearest: None }));
         }
 
         // Its line features.
@@ -647,12 +671,12 @@ impl Estimator {
         let (lo, hi) = bounds(&outline);
         let diag = (hi - lo).norm();
         let all = self.line_features(coarse, blob, diag, centroid, &mut est)?;
-        let looked = Looked { contrast, brighter, noise, segments: Some(all) };
         tm.lines += ms(t);
 
         // The best template and its pose: by outline fit, and between templates that fit alike
         // (revisions of one part), by where they differ.
         let (aligned, mut cands) = self.candidates(&outline, centroid, noise, tm);
+        let looked = Looked { contrast, brighter, noise, segments: Some(all), area, nearest: Some(aligned[0].1.rms) };
         let fitted = |est: &mut PartEstimate, best: &Candidate| {
             est.fit = best.reg.fit();
             est.scale = best.reg.pose.scale;

@@ -46,6 +46,12 @@ pub struct Params {
     pub scale_range: (f64, f64),
     /// A region larger than this multiple of the largest template's area is several parts.
     pub touching_area_ratio: f64,
+    /// A region whose r(phi) lies farther than this correlation distance from every template
+    /// (RMS of log-radius, the signature test) has no template near: two-thirds of the way from
+    /// a rival type's distance (0.1-0.3) to an unknown part's (0.5-0.6). Too small to hold two
+    /// parts as well, it is one part of a type not enrolled, and the region search is not run
+    /// on it (the search found nothing in such a region in any set: it only cost 10 ms).
+    pub far_signature: f64,
     /// Separate material of at least this fraction of the smallest template's area (and below
     /// the minimum part area) counts as debris.
     pub debris_fraction: f64,
@@ -91,6 +97,7 @@ impl Default for Params {
             max_foreign: 0.06,
             scale_range: (0.85, 1.18),
             touching_area_ratio: 1.3,
+            far_signature: 0.35,
             debris_fraction: 0.01,
             min_support: 0.93,
             departure_depth: 2.0,
