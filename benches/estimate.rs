@@ -134,6 +134,11 @@ fn bench(c: &mut Criterion) {
     for (name, img) in &frames {
         g.bench_function(*name, |b| b.iter(|| est.estimate(std::hint::black_box(img.view().unwrap())).unwrap()));
     }
+    // Both ways: frames of several separate regions use the second core by default.
+    let one = Estimator::new(&est.templates().cloned().collect::<Vec<_>>(), Params { threads: 1, ..Params::default() }).expect("estimator");
+    for (name, img) in frames.iter().filter(|(n, _)| n.contains("multi") || n.contains("four")) {
+        g.bench_function(format!("{name}, one thread"), |b| b.iter(|| one.estimate(std::hint::black_box(img.view().unwrap())).unwrap()));
+    }
     g.finish();
 
     // Rendering and enrolling 200 templates takes a while: only in a real bench run, not in

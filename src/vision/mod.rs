@@ -30,7 +30,10 @@ pub mod shape;
 pub mod signal;
 pub mod template;
 
+use std::sync::Arc;
 use std::time::Instant;
+
+use rayon::prelude::*;
 
 pub use frame::{FrameError, GrayImage, GrayView, MIN_SIDE};
 pub use geometry::Pt;
@@ -44,7 +47,8 @@ pub use geometry::Similarity;
 use geometry::{area_centroid, bounds};
 use register::OutlineIndex;
 
-/// Wall time of each stage, milliseconds (summed over the frame's parts).
+/// Wall time of each stage, milliseconds, summed over the frame's regions: with regions on two
+/// threads ([`Params::threads`]) the stages may add up to more than `total`.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Timings {
     /// Coarse regions on the decimated frame.
@@ -65,6 +69,20 @@ pub struct Timings {
     pub vote: f64,
     /// The whole estimate.
     pub total: f64,
+}
+
+/// Stage times add up over a frame's regions (`total` is the frame's own).
+impl std::ops::AddAssign for Timings {
+    fn add_assign(&mut self, t: Timings) {
+        self.detect += t.detect;
+        self.boundary += t.boundary;
+        self.lines += t.lines;
+        self.correlate += t.correlate;
+        self.register += t.register;
+        self.confidence += t.confidence;
+        self.clump += t.clump;
+        self.vote += t.vote;
+    }
 }
 
 /// The estimate for one part of a frame.
@@ -225,6 +243,14 @@ pub enum EstimatorError {
         /// What it must be.
         expected: &'static str,
     },
+    /// The worker threads could not be started.
+    #[error("cannot start {threads} estimator threads: {why}")]
+    Threads {
+        /// How many were asked for.
+        threads: usize,
+        /// The system's reason.
+        why: String,
+    },
 }
 
 /// Estimates part poses in frames against a fixed set of templates.
@@ -236,12 +262,21 @@ pub struct Estimator {
     min_debris_area: f64,
     min_template_area: f64,
     max_template_area: f64,
+    /// Workers for frames of several regions (`Params::threads` > 1).
+    pool: Option<Arc<rayon::ThreadPool>>,
 }
 
 /// How far below the least fit ([`Params::min_fit`]) the closest template's registration may
 /// start before it is given up (see [`register::register_unless`]): outlines of one part come
 /// well within it even before the registration has converged.
 const GIVE_UP_MARGIN: f64 = 0.15;
+
+/// What one coarse region holds: its parts, the debris found in it, and the time each stage took.
+struct Regional {
+    parts: Vec<PartEstimate>,
+    debris: usize,
+    timings: Timings,
+}
 
 /// What the single-part look at a region leaves for the region search.
 struct Looked {
@@ -309,6 +344,7 @@ impl Estimator {
         check((0.0..=1.0).contains(&params.accept_threshold), "accept_threshold", params.accept_threshold.to_string(), "0..=1")?;
         check(params.signal_bins >= 64, "signal_bins", params.signal_bins.to_string(), ">= 64")?;
         check(params.candidates >= 1, "candidates", params.candidates.to_string(), ">= 1")?;
+        check((1..=64).contains(&params.threads), "threads", params.threads.to_string(), "1..=64")?;
         let smallest = templates.iter().map(|t| t.area).fold(f64::INFINITY, f64::min);
         let largest = templates.iter().map(|t| t.area).fold(0.0, f64::max);
         let min_area = params.min_area.unwrap_or(0.25 * smallest);
@@ -318,6 +354,16 @@ impl Estimator {
         let mut params = params;
         params.coarse_factor = params.coarse_factor.min(((min_radius / 45.0) as usize).max(1));
         let min_debris_area = params.debris_fraction * smallest;
+        let pool = match params.threads {
+            1 => None,
+            n => Some(Arc::new(
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(n)
+                    .thread_name(|i| format!("lfi-vision-{i}"))
+                    .build()
+                    .map_err(|e| EstimatorError::Threads { threads: n, why: e.to_string() })?,
+            )),
+        };
         Ok(Self {
             lib: Library::new(templates, params.signal_bins),
             params,
@@ -325,6 +371,7 @@ impl Estimator {
             min_debris_area,
             min_template_area: smallest,
             max_template_area: largest,
+            pool,
         })
     }
 
@@ -424,27 +471,42 @@ impl Estimator {
         let coarse = detect::detect(frame, &self.params.detect_params(self.min_area, self.min_debris_area))?;
         tm.detect = ms(t0);
 
+        // Each region on its own; several at once on the second core (`Params::threads`), one
+        // on the calling thread only.
+        let region = |blob: &detect::Blob| self.estimate_blob(frame, &coarse, blob, noise);
+        let each: Vec<Result<Regional, FrameError>> = match &self.pool {
+            Some(pool) if coarse.blobs.len() > 1 => pool.install(|| coarse.blobs.par_iter().map(region).collect()),
+            _ => coarse.blobs.iter().map(region).collect(),
+        };
         let mut parts = Vec::with_capacity(coarse.blobs.len());
         let mut debris = coarse.debris;
-        for blob in &coarse.blobs {
-            let (est, looked) = self.estimate_part(frame, &coarse, blob, noise, &mut tm)?;
-            // A region one template cannot explain may hold several parts, or one part whose
-            // silhouette came out wrong: look for each part in it by its own evidence.
-            if est.decision.verdict.may_be_several() && self.worth_searching(&looked) {
-                let t = Instant::now();
-                let found = self.estimate_region(frame, &coarse, blob, &est, looked, &mut tm)?;
-                tm.clump += ms(t);
-                if let Some((found, small)) = found {
-                    parts.extend(found);
-                    debris += small;
-                    continue;
-                }
-            }
-            parts.push(est);
+        for r in each {
+            let r = r?;
+            parts.extend(r.parts);
+            debris += r.debris;
+            tm += r.timings;
         }
         parts.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
         tm.total = ms(t0);
         Ok(FrameEstimate { parts, debris, noise_sigma: noise, timings: tm })
+    }
+
+    /// The parts of one coarse region: looked at as one part, and searched for several when
+    /// one template cannot explain it; also the debris found in it, and the time each stage took.
+    fn estimate_blob(&self, frame: GrayView<'_>, coarse: &detect::Coarse, blob: &detect::Blob, noise: f64) -> Result<Regional, FrameError> {
+        let mut tm = Timings::default();
+        let (est, looked) = self.estimate_part(frame, coarse, blob, noise, &mut tm)?;
+        // A region one template cannot explain may hold several parts, or one part whose
+        // silhouette came out wrong: look for each part in it by its own evidence.
+        if est.decision.verdict.may_be_several() && self.worth_searching(&looked) {
+            let t = Instant::now();
+            let found = self.estimate_region(frame, coarse, blob, &est, looked, &mut tm)?;
+            tm.clump += ms(t);
+            if let Some((parts, debris)) = found {
+                return Ok(Regional { parts, debris, timings: tm });
+            }
+        }
+        Ok(Regional { parts: vec![est], debris: 0, timings: tm })
     }
 
     /// Whether a region the single-part look could not explain may hold parts the region search

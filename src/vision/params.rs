@@ -68,6 +68,9 @@ pub struct Params {
     /// depth): three times, two to five millimetres, a notch or lug rather than a slit the
     /// outline ran further into than the template's.
     pub departure_width: f64,
+    /// Threads a frame of several regions is estimated on (each region on one): 2 uses the
+    /// second core of the appliance's machine; 1 keeps every frame on the calling thread.
+    pub threads: usize,
     /// Confidence: lambda = lambda0 (1 - alpha noise).
     pub lambda0: f64,
     /// Noise's weight in lambda (the study's 0.5).
@@ -102,6 +105,7 @@ impl Default for Params {
             min_support: 0.93,
             departure_depth: 2.0,
             departure_width: 3.0,
+            threads: 2,
             lambda0: 25.0,
             alpha: 0.5,
             accept_threshold: 0.5,
