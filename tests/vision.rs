@@ -230,9 +230,9 @@ fn a_part_found_in_a_roi_is_reported_in_frame_pixels_with_its_pose_and_lines() {
     assert!((sa.a - sb.a).norm() < 0.5, "{sa:?} vs {sb:?}");
 }
 
-/// A frame of several regions comes out the same on one thread as on two: the same parts in
-/// the same order, each decided alike at the same pose, the same debris and stage times summed
-/// over the regions.
+/// A frame comes out the same on one thread as on two (regions side by side; in a region of
+/// several parts, the vote, the looks at its hypotheses and the parts' measures): the same
+/// parts in the same order, each decided alike at the same pose, and the same debris.
 #[test]
 fn several_regions_on_two_threads_are_estimated_as_on_one() {
     let sim = small_sim();
@@ -240,7 +240,9 @@ fn several_regions_on_two_threads_are_estimated_as_on_one() {
     let one = Estimator::new(&templates, Params { threads: 1, ..Params::default() }).unwrap();
     let two = Estimator::new(&templates, Params { threads: 2, ..Params::default() }).unwrap();
     let mut regions = 0;
-    for (i, condition) in [(0, "multi"), (1, "multi"), (2, "multi"), (0, "touching"), (0, "unknown")] {
+    for (i, condition) in
+        [(0, "multi"), (1, "multi"), (2, "multi"), (0, "touching"), (1, "touching"), (0, "overlapping"), (1, "overlapping"), (0, "unknown")]
+    {
         let scene = sim.scene_with(i, condition).unwrap();
         let (a, b) = (one.estimate(scene.image.view().unwrap()).unwrap(), two.estimate(scene.image.view().unwrap()).unwrap());
         let story = |fe: &lfi_bridge::vision::FrameEstimate| {

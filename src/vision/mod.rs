@@ -310,7 +310,7 @@ struct Seen<'a> {
     brighter: bool,
     /// Frame points where the part's own outline is not seen (against or under another part
     /// found in the region): nothing is judged there.
-    excused: &'a dyn Fn(Pt) -> bool,
+    excused: &'a (dyn Fn(Pt) -> bool + Sync),
 }
 
 /// One template explaining a part found in a region: its registration, the image's support for
@@ -535,7 +535,7 @@ impl Estimator {
     ) -> Result<Option<(Vec<PartEstimate>, usize)>, FrameError> {
         let p = &self.params;
         let (contrast, noise) = (looked.contrast, looked.noise);
-        let region = clump::Region { coarse, blob, outline: &whole.outline, noise, contrast };
+        let region = clump::Region { coarse, blob, outline: &whole.outline, noise, contrast, pool: self.pool.as_deref() };
         let ex = clump::explain(&self.lib, &region, |ei| self.tolerance(ei, noise), self.min_debris_area);
         tm.vote += ex.vote_ms;
         if ex.parts.is_empty() {
@@ -559,7 +559,11 @@ impl Estimator {
             brighter: looked.brighter,
             excused: &|_| false,
         };
-        let mut out: Vec<PartEstimate> = ex.parts.iter().map(|f| self.region_part(&seen, &ex, f)).collect();
+        // Each part found measured on its own, side by side on the pool.
+        let mut out: Vec<PartEstimate> = match &self.pool {
+            Some(pool) if ex.parts.len() > 1 => pool.install(|| ex.parts.par_iter().map(|f| self.region_part(&seen, &ex, f)).collect()),
+            _ => ex.parts.iter().map(|f| self.region_part(&seen, &ex, f)).collect(),
+        };
         let mut debris = 0;
         for &(area, c) in &ex.leftover {
             if area < self.min_area {

@@ -17,6 +17,17 @@ pub struct Region<'a> {
     pub noise: f64,
     /// Part-to-belt contrast along the region's outline, gray levels.
     pub contrast: f64,
+    /// Workers the vote and the looks at hypotheses may share (None: the calling thread only).
+    pub pool: Option<&'a rayon::ThreadPool>,
+}
+
+/// `f` of each item, in the items' order: on the region's pool when it has one.
+pub(super) fn each<T: Sync, R: Send>(pool: Option<&rayon::ThreadPool>, items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    use rayon::prelude::*;
+    match pool {
+        Some(pool) if items.len() > 1 => pool.install(|| items.par_iter().map(&f).collect()),
+        _ => items.iter().map(f).collect(),
+    }
 }
 
 /// A part found in a region.

@@ -24,6 +24,8 @@ mod vote;
 
 pub use found::{Explained, Found, MIN_SUPPORT, Region};
 
+use found::each;
+
 use opencv::core::{self, Mat};
 
 use super::geometry::Similarity;
@@ -34,13 +36,13 @@ use vote::Vote;
 
 /// Finds and verifies the parts in a region. `tolerance(entry)` is the outline tolerance of that
 /// template at this frame's noise, as the single-part path uses it.
-pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> f64, min_leftover: f64) -> Explained {
+pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> f64 + Sync, min_leftover: f64) -> Explained {
     let scene = oriented_points(region.outline);
     if scene.len() < 8 {
         return Explained::default();
     }
     let mut vote = Vote::new(lib, region.outline);
-    let hyps = vote.hypotheses(&scene, 1.0);
+    let hyps = vote.hypotheses(&scene, 1.0, region.pool);
     let look = Look::new(lib, region, &tolerance);
     let (mut found, mut masks) = (Vec::new(), Vec::new());
     take(&look, region, hyps, &mut found, &mut masks);
@@ -60,7 +62,7 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         if 2 * rest.len() < shortest {
             break;
         }
-        let hyps = vote.hypotheses(&rest, scale);
+        let hyps = vote.hypotheses(&rest, scale, region.pool);
         take(&look, region, hyps, &mut found, &mut masks);
     }
     let (mut found, masks, keep) = one_per_part(lib, found, masks);
@@ -72,13 +74,32 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
 
 /// Looks at each hypothesis in turn: a part found joins `found`, and its filled outline at its
 /// pose `masks`, made once (the second vote's look at what is left and the overlap tests read
-/// the same masks).
+/// the same masks). A hypothesis that is a part found before it is passed over. On the region's
+/// pool the looks run side by side, each as far as it would alone, and are then taken in the
+/// hypotheses' order, so that the same parts are found as one by one (a look at one that turns
+/// out to be found by an earlier hypothesis of the same round is the price).
 fn take(look: &Look<'_>, region: &Region<'_>, hyps: Vec<(usize, Similarity, u32)>, found: &mut Vec<Found>, masks: &mut Vec<Mat>) {
-    for (ei, init, _) in hyps {
-        if let Some(part) = look.at(found, ei, init) {
+    let mut keep = |ei: usize, init: &Similarity, part: Option<Found>, found: &mut Vec<Found>| {
+        if let Some(part) = part.filter(|_| !verify::already_found(found, ei, init)) {
             masks.push(mask::mask_of(look.lib, &part, region.blob, region.coarse.factor).unwrap_or_default());
             found.push(part);
         }
+    };
+    if region.pool.is_none() {
+        for (ei, init, _) in hyps {
+            let init = look.aim(ei, init);
+            if !verify::already_found(found, ei, &init) {
+                let part = look.at(ei, init);
+                keep(ei, &init, part, found);
+            }
+        }
+        return;
+    }
+    let aimed: Vec<(usize, Similarity)> = each(region.pool, &hyps, |&(ei, init, _)| (ei, look.aim(ei, init)));
+    let fresh: Vec<(usize, Similarity)> = aimed.into_iter().filter(|(ei, init)| !verify::already_found(found, *ei, init)).collect();
+    let parts = each(region.pool, &fresh, |&(ei, init)| look.at(ei, init));
+    for ((ei, init), part) in fresh.into_iter().zip(parts) {
+        keep(ei, &init, part, found);
     }
 }
 

@@ -21,13 +21,13 @@ const ANGLE_SEARCH_STEP: f64 = 2.0;
 pub(super) struct Look<'a> {
     pub(super) lib: &'a Library,
     outline: &'a [Pt],
-    tolerance: &'a dyn Fn(usize) -> f64,
+    tolerance: &'a (dyn Fn(usize) -> f64 + Sync),
     ext: OutlineIndex,
     pub(super) edge: EdgeTest<'a>,
 }
 
 impl<'a> Look<'a> {
-    pub(super) fn new(lib: &'a Library, region: &Region<'a>, tolerance: &'a dyn Fn(usize) -> f64) -> Self {
+    pub(super) fn new(lib: &'a Library, region: &Region<'a>, tolerance: &'a (dyn Fn(usize) -> f64 + Sync)) -> Self {
         Self {
             lib,
             outline: region.outline,
@@ -37,28 +37,34 @@ impl<'a> Look<'a> {
         }
     }
 
-    /// The part template `ei` explains near `init`, if any that is not already `found`.
-    pub(super) fn at(&self, found: &[Found], ei: usize, init: Similarity) -> Option<Found> {
+    /// The start of the look at template `ei` near a vote peak's `init`: the peak's pose at the
+    /// best of a few angles around it.
+    pub(super) fn aim(&self, ei: usize, init: Similarity) -> Similarity {
         let (ext, edge) = (&self.ext, &self.edge);
         let e = &self.lib.entries[ei];
         let tol = (self.tolerance)(ei);
         // A mostly round part votes for its centroid from every rotation alike, and only its
         // lobes tell the angle: the peak's angle may be several degrees off, beyond what the
         // registration pulls in. A coarse look at the angles around it first.
-        let init = (-ANGLE_SEARCH..=ANGLE_SEARCH)
+        (-ANGLE_SEARCH..=ANGLE_SEARCH)
             .map(|k| {
                 let mut pose = init;
                 pose.angle_rad += (k as f64 * ANGLE_SEARCH_STEP).to_radians();
                 (pose, support(&e.shape, &pose, ext, edge, 2.0 * tol, 8))
             })
             .max_by(|a, b| a.1.total_cmp(&b.1))
-            .map_or(init, |(pose, _)| pose);
+            .map_or(init, |(pose, _)| pose)
+    }
+
+    /// The part template `ei` explains from `init` (its [`Look::aim`]), if any; whether it is
+    /// one already found is [`already_found`]'s to say.
+    pub(super) fn at(&self, ei: usize, init: Similarity) -> Option<Found> {
+        let (ext, edge) = (&self.ext, &self.edge);
+        let e = &self.lib.entries[ei];
+        let tol = (self.tolerance)(ei);
         // Cheap looks first: most peaks are another part's outline voting by chance, or the
-        // same part again, and end here before any registration.
-        let duplicate = found.iter().any(|f| {
-            f.entry == ei && (f.reg.pose.to - init.to).norm() < 20.0 && angle_diff_deg(f.reg.pose.angle_deg(), init.angle_deg()).abs() < 4.0
-        });
-        if duplicate || support(&e.shape, &init, ext, edge, 2.0 * tol, 4) < MIN_SUPPORT - 0.2 {
+        // same part again (see `already_found`), and end here before any registration.
+        if support(&e.shape, &init, ext, edge, 2.0 * tol, 4) < MIN_SUPPORT - 0.2 {
             return None;
         }
         // Registration on the stretch of the region's outline the part can reach: the rest is
@@ -85,6 +91,14 @@ impl<'a> Look<'a> {
             points,
         })
     }
+}
+
+/// Whether template `ei` aimed at `init` is a part already `found`: the same template within
+/// 20 px and 4 degrees.
+pub(super) fn already_found(found: &[Found], ei: usize, init: &Similarity) -> bool {
+    found.iter().any(|f| {
+        f.entry == ei && (f.reg.pose.to - init.to).norm() < 20.0 && angle_diff_deg(f.reg.pose.angle_deg(), init.angle_deg()).abs() < 4.0
+    })
 }
 
 /// The fraction of the template's outline at `pose` (every `stride`-th point) that the region's

@@ -18,10 +18,11 @@ const PEAKS_PER_TEMPLATE: usize = 3;
 /// Hypotheses refined and verified per region, best votes first.
 const MAX_HYPOTHESES: usize = 10;
 
-/// The region's vote: one accumulator for every template and every round, and its wall time.
+/// The region's vote: one accumulator per worker for every template and every round, and its
+/// wall time.
 pub(super) struct Vote<'a> {
     lib: &'a Library,
-    acc: Accumulator,
+    accs: Vec<Accumulator>,
     /// Wall time spent voting so far, milliseconds.
     pub(super) ms: f64,
 }
@@ -30,23 +31,47 @@ impl<'a> Vote<'a> {
     /// A vote over the bounding box of the region's `outline`.
     pub(super) fn new(lib: &'a Library, outline: &[Pt]) -> Self {
         let (lo, hi) = bounds(outline);
-        Self { lib, acc: Accumulator::new(lo, hi), ms: 0.0 }
+        Self { lib, accs: vec![Accumulator::new(lo, hi)], ms: 0.0 }
     }
 
     /// Every template's best poses from `scene` (oriented outline points) at `scale`: (entry,
     /// pose, votes), the [`MAX_HYPOTHESES`] with the most votes as a fraction of the template's
     /// voting points.
-    pub(super) fn hypotheses(&mut self, scene: &[(Pt, usize, i32)], scale: f64) -> Vec<(usize, Similarity, u32)> {
+    /// With a `pool`, its workers vote at once, each template on one of them, dealt in turn.
+    pub(super) fn hypotheses(
+        &mut self,
+        scene: &[(Pt, usize, i32)],
+        scale: f64,
+        pool: Option<&rayon::ThreadPool>,
+    ) -> Vec<(usize, Similarity, u32)> {
         let voting = std::time::Instant::now();
         let lib = self.lib;
-        let mut hyps: Vec<(usize, Similarity, u32)> = Vec::new();
         let rot = Rotations::new(scale);
-        for (ei, e) in lib.entries.iter().enumerate() {
-            for (pose, votes) in vote(&mut self.acc, &e.shape, e.template.centroid, scene, &rot) {
-                hyps.push((ei, pose, votes));
-            }
+        let workers = pool.map_or(1, |p| p.current_num_threads()).clamp(1, lib.entries.len());
+        while self.accs.len() < workers {
+            let more = self.accs[0].empty_like();
+            self.accs.push(more);
         }
-        // Stronger evidence first: votes as a fraction of the template's voting points.
+        let deal = |(k, acc): (usize, &mut Accumulator)| {
+            let mut hyps = Vec::new();
+            for (ei, e) in lib.entries.iter().enumerate().skip(k).step_by(workers) {
+                for (pose, votes) in vote(acc, &e.shape, e.template.centroid, scene, &rot) {
+                    hyps.push((ei, pose, votes));
+                }
+            }
+            hyps
+        };
+        let mut hyps: Vec<(usize, Similarity, u32)> = match pool {
+            Some(pool) if workers > 1 => {
+                use rayon::prelude::*;
+                pool.install(|| self.accs[..workers].par_iter_mut().enumerate().map(deal).collect::<Vec<_>>()).concat()
+            }
+            _ => deal((0, &mut self.accs[0])),
+        };
+        // In template order (each template's peaks in their own order), as one worker finds
+        // them; then stronger evidence first: votes as a fraction of the template's voting
+        // points (both sorts stable, so equal fractions keep that order).
+        hyps.sort_by_key(|h| h.0);
         hyps.sort_by(|a, b| {
             let fa = a.2 as f64 / lib.entries[a.0].shape.vote.len() as f64;
             let fb = b.2 as f64 / lib.entries[b.0].shape.vote.len() as f64;
@@ -82,6 +107,11 @@ impl Accumulator {
         let ny = (((hi.y - lo.y) / CELL).ceil() as usize + 1).max(1);
         let n = ANGLE_BINS * nx * ny;
         Self { lo, nx, ny, cells: vec![[0; 2]; n], touched: Vec::new(), tall: Vec::new() }
+    }
+
+    /// Another empty accumulator over the same box, for another worker.
+    fn empty_like(&self) -> Self {
+        Self { lo: self.lo, nx: self.nx, ny: self.ny, cells: vec![[0; 2]; self.cells.len()], touched: Vec::new(), tall: Vec::new() }
     }
 }
 
