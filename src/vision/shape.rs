@@ -149,13 +149,19 @@ impl<'a> EdgeTest<'a> {
         let t = Pt::new(-n.y, n.x);
         [0, -1, 1, -2, 2, -3, 3].into_iter().any(|k| {
             let c = p + n.scale(k as f64 * 0.5 * f);
-            let (Some(a), Some(b), Some(l), Some(r)) =
-                (self.sample(c - n.scale(f)), self.sample(c + n.scale(f)), self.sample(c - t.scale(f)), self.sample(c + t.scale(f)))
-            else {
+            let (Some(a), Some(b)) = (self.sample(c - n.scale(f)), self.sample(c + n.scale(f))) else {
                 return false;
             };
             let across = (a - b).abs();
-            across >= 2.0 * (l - r).abs() && across >= self.threshold
+            // The step along the outline is sampled only for a step across it that is tall
+            // enough (most points of a wrong hypothesis lie on flat belt or part).
+            if across < self.threshold {
+                return false;
+            }
+            let (Some(l), Some(r)) = (self.sample(c - t.scale(f)), self.sample(c + t.scale(f))) else {
+                return false;
+            };
+            across >= 2.0 * (l - r).abs()
         })
     }
 
