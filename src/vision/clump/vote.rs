@@ -47,7 +47,7 @@ impl<'a> Vote<'a> {
         let voting = std::time::Instant::now();
         let lib = self.lib;
         let rot = Rotations::new(scale);
-        let workers = pool.map_or(1, |p| p.current_num_threads()).clamp(1, lib.entries.len());
+        let workers = pool.map_or(1, |p| p.current_num_threads()).min(lib.entries.len()).max(1);
         while self.accs.len() < workers {
             let more = self.accs[0].empty_like();
             self.accs.push(more);
