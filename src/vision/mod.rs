@@ -29,11 +29,10 @@ pub mod register;
 pub mod shape;
 pub mod signal;
 pub mod template;
+mod workers;
 
 use std::sync::Arc;
 use std::time::Instant;
-
-use rayon::prelude::*;
 
 pub use frame::{FrameError, GrayImage, GrayView, MIN_SIDE};
 pub use geometry::Pt;
@@ -474,10 +473,7 @@ impl Estimator {
         // Each region on its own; several at once on the second core (`Params::threads`), one
         // on the calling thread only.
         let region = |blob: &detect::Blob| self.estimate_blob(frame, &coarse, blob, noise);
-        let each: Vec<Result<Regional, FrameError>> = match &self.pool {
-            Some(pool) if coarse.blobs.len() > 1 => pool.install(|| coarse.blobs.par_iter().map(region).collect()),
-            _ => coarse.blobs.iter().map(region).collect(),
-        };
+        let each = workers::each(self.pool.as_deref(), &coarse.blobs, region);
         let mut parts = Vec::with_capacity(coarse.blobs.len());
         let mut debris = coarse.debris;
         for r in each {
@@ -560,10 +556,7 @@ impl Estimator {
             excused: &|_| false,
         };
         // Each part found measured on its own, side by side on the pool.
-        let mut out: Vec<PartEstimate> = match &self.pool {
-            Some(pool) if ex.parts.len() > 1 => pool.install(|| ex.parts.par_iter().map(|f| self.region_part(&seen, &ex, f)).collect()),
-            _ => ex.parts.iter().map(|f| self.region_part(&seen, &ex, f)).collect(),
-        };
+        let mut out = workers::each(self.pool.as_deref(), &ex.parts, |f| self.region_part(&seen, &ex, f));
         let mut debris = 0;
         for &(area, c) in &ex.leftover {
             if area < self.min_area {

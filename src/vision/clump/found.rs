@@ -21,15 +21,6 @@ pub struct Region<'a> {
     pub pool: Option<&'a rayon::ThreadPool>,
 }
 
-/// `f` of each item, in the items' order: on the region's pool when it has one.
-pub(super) fn each<T: Sync, R: Send>(pool: Option<&rayon::ThreadPool>, items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
-    use rayon::prelude::*;
-    match pool {
-        Some(pool) if items.len() > 1 => pool.install(|| items.par_iter().map(&f).collect()),
-        _ => items.iter().map(f).collect(),
-    }
-}
-
 /// A part found in a region.
 #[derive(Debug, Clone)]
 pub struct Found {

@@ -24,13 +24,12 @@ mod vote;
 
 pub use found::{Explained, Found, MIN_SUPPORT, Region};
 
-use found::each;
-
 use opencv::core::{self, Mat};
 
 use super::geometry::Similarity;
 use super::shape::{MODEL_VOTE_STRIDE, oriented_points};
 use super::template::Library;
+use super::workers::each;
 use verify::Look;
 use vote::Vote;
 
