@@ -10,7 +10,7 @@
 //! and lighting.
 
 use super::frame::GrayView;
-use super::geometry::{Pt, outward_normals, resample_closed, smooth_closed};
+use super::geometry::{Pt, area_centroid, outward_normals, resample_closed, smooth_closed};
 
 /// Parameters of the refinement.
 #[derive(Debug, Clone)]
@@ -134,9 +134,13 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     // The edge is the outermost crossing: stable on the soft shading ramps of rounded parts,
     // where a gradient peak wanders, and at the true edge of a sharp step.
     let mut offsets = vec![f64::NAN; n];
+    // Whether the material inside each point rises to half the part's contrast (see
+    // `drop_faint_spurs`).
+    let mut solid = vec![true; n];
     for i in 0..n {
         let prof = &sm[i * k..(i + 1) * k];
         let belt = (prof[k - ends..].iter().sum::<f64>() / ends as f64).clamp(l_belt - 3.0 * spread, l_belt + 3.0 * spread);
+        solid[i] = prof[..half as usize].iter().any(|&v| sign * (v - belt) >= 0.5 * (l_part - l_belt).abs());
         let level = belt + sign * rise;
         let is_part = |v: f64| if brighter { v >= level } else { v <= level };
         if let Some(j) = (0..k - 1).rev().find(|&j| is_part(prof[j]))
@@ -149,12 +153,97 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     }
     let contrast = (l_part - l_belt).abs();
     clean_offsets(&mut offsets);
-    let outline: Vec<Pt> = (0..n).filter(|&i| offsets[i].is_finite()).map(|i| smooth[i] + normals[i].scale(offsets[i])).collect();
-    if outline.len() < n / 2 {
+    let kept: Vec<usize> = (0..n).filter(|&i| offsets[i].is_finite()).collect();
+    if kept.len() < n / 2 {
         // Mostly no edge: keep the coarse outline rather than a few scattered points.
         return Refined { outline: smooth, contrast, brighter };
     }
-    Refined { outline, contrast, brighter }
+    let outline: Vec<Pt> = kept.iter().map(|&i| smooth[i] + normals[i].scale(offsets[i])).collect();
+    let solid: Vec<bool> = kept.iter().map(|&i| solid[i]).collect();
+    Refined { outline: drop_faint_spurs(outline, &solid, 2.0 * p.search), contrast, brighter }
+}
+
+/// Faint points in a row, at least this many, make a spur worth looking for.
+const FAINT_RUN: usize = 3;
+
+/// How many points either side of a faint run the spur's neck is looked for.
+const NECK_REACH: usize = 24;
+
+/// Least reach of a spur beyond its neck, px: less is the outline's own wobble along a faint
+/// flank, and cutting it gains nothing.
+const SPUR_DEPTH: f64 = 5.0;
+
+/// How far the points of an open polyline reach from the chord joining its ends.
+fn depth(pts: &[Pt]) -> f64 {
+    let (Some(&a), Some(&b)) = (pts.first(), pts.last()) else { return 0.0 };
+    let d = b - a;
+    let len = d.norm();
+    pts.iter().map(|&p| if len > 1e-9 { (d.x * (p.y - a.y) - d.y * (p.x - a.x)).abs() / len } else { (p - a).norm() }).fold(0.0, f64::max)
+}
+
+/// Cuts from a closed outline every spur of faint material joined to the part by a narrow neck:
+/// a stain or speck of the belt that lay within the coarse closing's reach of the part, whose
+/// edge the refinement then followed (a stain is material to the level test, and the profiles
+/// along its far side never see the part). A spur is a run of points whose material never rises
+/// to half the part's contrast (`solid` false), leaving the outline through a neck narrower than
+/// `neck` px (the points just before and after it come that close) and adding area outside the
+/// rest of the outline by more than [`SPUR_DEPTH`]; the outline then goes straight across the neck.
+/// The neck may be as wide as the closing's reach, which joined the stain to the part: `neck` is
+/// twice the refinement's search. Faint material that widens
+/// the part along its side (a dark rim, a shaded flank) has no neck and stays, as does a spur of
+/// the part's own bright material.
+fn drop_faint_spurs(outline: Vec<Pt>, solid: &[bool], neck: f64) -> Vec<Pt> {
+    let n = outline.len();
+    if n < 4 * NECK_REACH || solid.iter().all(|&s| s) {
+        return outline;
+    }
+    // Start the walk at a solid point so that no faint run wraps past the end.
+    let Some(start) = solid.iter().position(|&s| s) else { return outline };
+    let at = |i: usize| (start + i) % n;
+    let (total, _) = area_centroid(&outline);
+    let mut drop = vec![false; n];
+    let mut i = 0;
+    while i < n {
+        if solid[at(i)] {
+            i += 1;
+            continue;
+        }
+        let a = i;
+        while i < n && !solid[at(i)] {
+            i += 1;
+        }
+        let b = i - 1;
+        if b + 1 - a < FAINT_RUN {
+            continue;
+        }
+        // The neck: the closest pair of points before and after the run.
+        let mut best: Option<(f64, usize, usize)> = None;
+        for u in a.saturating_sub(NECK_REACH)..a {
+            for v in b + 1..(b + 1 + NECK_REACH).min(n + u) {
+                let d = (outline[at(u)] - outline[at(v)]).norm();
+                if best.is_none_or(|(bd, _, _)| d < bd) {
+                    best = Some((d, u, v));
+                }
+            }
+        }
+        let Some((d, u, v)) = best else { continue };
+        if d > neck {
+            continue;
+        }
+        // The spur adds area: its loop turns the same way as the whole outline.
+        let spur: Vec<Pt> = (u..=v).map(|j| outline[at(j)]).collect();
+        let (area, _) = area_centroid(&spur);
+        if area * total <= 0.0 || area.abs() > 0.1 * total.abs() || depth(&spur) < SPUR_DEPTH {
+            continue;
+        }
+        for j in u + 1..v {
+            drop[at(j)] = true;
+        }
+    }
+    if !drop.iter().any(|&d| d) {
+        return outline;
+    }
+    outline.into_iter().zip(drop).filter(|(_, d)| !d).map(|(p, _)| p).collect()
 }
 
 /// Appends the frame's bilinear samples at `b + n t` for every t (evenly spaced, ascending): as

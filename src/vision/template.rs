@@ -328,6 +328,51 @@ mod tests {
         }
     }
 
+    /// A bright disc (radius 220) on the belt and, `gap` px beside it, a small blob of
+    /// brightness `blob` (radius 14), joined to the disc by a bridge of the same brightness
+    /// `bridge` px wide (0: none).
+    fn disc_and_blob(blob: u8, gap: f64, bridge: f64) -> (GrayImage, Pt, f64) {
+        let (c, r) = (Pt::new(350.0, 350.0), 220.0);
+        let b = Pt::new(350.0 + r + gap + 14.0, 350.0);
+        let mut img = GrayImage::new(700, 700, 55);
+        for y in 0..700 {
+            for x in 0..700 {
+                let p = Pt::new(x as f64, y as f64);
+                if (p - c).norm() <= r {
+                    img.data[y * 700 + x] = 165;
+                } else if (p - b).norm() <= 14.0 || (bridge > 0.0 && p.x > c.x && p.x < b.x && (p.y - 350.0).abs() <= bridge / 2.0) {
+                    img.data[y * 700 + x] = blob;
+                }
+            }
+        }
+        (img, c, r)
+    }
+
+    #[test]
+    fn a_faint_stain_beside_the_part_stays_out_of_its_outline() {
+        // A stain a fifth of the part's contrast, 6 px from its edge: within the coarse
+        // closing's reach (5 decimated px of 4), so the coarse region runs round it.
+        let (img, c, r) = disc_and_blob(78, 6.0, 0.0);
+        let t = Template::from_image(img.view().unwrap(), "disc", 1, Face::Up, None, &Params::default()).unwrap();
+        let far = t.outline.iter().map(|p| (*p - c).norm()).fold(0.0, f64::max);
+        // The outline crosses the stain's neck a few px out (the profiles there meet the stain
+        // first); the stain itself reaches r + 34.
+        assert!(far < r + 6.0, "the outline reaches {far:.1} px from the centre (disc radius {r})");
+        // The same disc alone on the belt.
+        let (alone, _, _) = disc_and_blob(55, 6.0, 0.0);
+        let disc = Template::from_image(alone.view().unwrap(), "disc", 1, Face::Up, None, &Params::default()).unwrap().area;
+        assert!((t.area - disc).abs() < 0.002 * disc, "area {:.0} px^2, the disc alone's {disc:.0}", t.area);
+    }
+
+    #[test]
+    fn a_lug_of_the_part_on_a_narrow_neck_stays_in_its_outline() {
+        // The same shape in the part's own brightness: a lug, kept.
+        let (img, c, r) = disc_and_blob(165, 6.0, 8.0);
+        let t = Template::from_image(img.view().unwrap(), "disc", 1, Face::Up, None, &Params::default()).unwrap();
+        let far = t.outline.iter().map(|p| (*p - c).norm()).fold(0.0, f64::max);
+        assert!(far > r + 6.0 + 26.0, "the lug's far side at {far:.1} px from the centre is missing");
+    }
+
     #[test]
     fn a_plain_part_has_no_interior_edges() {
         let mut img = GrayImage::new(400, 400, 50);
