@@ -310,8 +310,10 @@ pub struct Departure {
     pub len: f64,
     /// How wide it is: the area between the two outlines over its depth, px.
     pub width: f64,
-    /// How far the outlines are apart there at most, px (capped at the registration's reach).
+    /// How far the outlines are apart there at most, px, up to `reach`.
     pub depth: f64,
+    /// The farthest the other outline is looked for, px: a depth of `reach` is at least that.
+    pub reach: f64,
     /// The separation that counts as apart, px.
     pub apart: f64,
     /// Where it lies, degrees around the template's centroid in the template's own frame.
@@ -329,6 +331,15 @@ impl Departure {
     /// millimetres), not the outline's noise or a slit.
     pub fn counts(&self, l: &Limits) -> bool {
         self.depth >= l.departure_depth * self.apart && self.width >= l.departure_width * self.apart
+    }
+
+    /// Whether it makes a part that ties with a rival, and does not follow it where the two
+    /// differ, a type not enrolled: it counts, or it is as deep as the other outline is looked
+    /// for and wide (where `apart` is half the reach or more, a loose fit's or a noisy frame's,
+    /// a lug could not count otherwise). Not for a part without a tie: there a stain or a
+    /// neighbour's edge against a blurred part reaches that deep, and the part is its best.
+    pub fn counts_in_a_tie(&self, l: &Limits) -> bool {
+        self.counts(l) || (self.depth >= self.reach && self.width >= l.departure_width * self.apart)
     }
 }
 
@@ -614,15 +625,22 @@ fn ladder(m: &Measured, l: &Limits, mut seen: impl FnMut(Test, bool)) -> Option<
     }
     // A rival that ties is told apart where the two differ when the part follows the best
     // there; a part that follows neither is a type not enrolled, one that follows the rival is
-    // not the best; where they do not tell, the line features must.
+    // not the best; where they do not tell, the line features must. Where they do not tell
+    // and the part departs from the best deep and wide besides (its own outline: alone), it is
+    // not the best, and not clearly the rival either: a type not enrolled, as the departure
+    // test below would say.
     if let (Some(r), Some(lines)) = (&m.rival, &m.lines) {
         let follows = r.local.map(|x| x.follows());
         let pass = !r.ties(l)
             || follows == Some(Follows::Best)
             || (matches!(follows, None | Some(Follows::Unclear)) && lines.confidence - r.confidence >= l.confidence_margin);
         if test(Test::Rival, pass) {
+            let departs = m.departure.filter(|d| d.counts_in_a_tie(l));
             return Some(match (follows, best_named(m)) {
                 (Some(Follows::Neither), Some(like)) => Verdict::Unlike { like, rival: Some(r.clone()), departure: None },
+                (Some(Follows::Unclear), Some(like)) if departs.is_some() => {
+                    Verdict::Unlike { like, rival: Some(r.clone()), departure: departs }
+                }
                 _ => Verdict::Rival { rival: r.clone() },
             });
         }

@@ -367,7 +367,16 @@ pub fn departure(
             }
         }
         let mid = outline[run.points[run.points.len() / 2]];
-        Some(Departure { width, less_material, len: run.len, depth: depth_max, apart, at_deg: tpl.angle_at(mid), part_lacks: lacks })
+        Some(Departure {
+            width,
+            less_material,
+            len: run.len,
+            depth: depth_max,
+            reach: MAX_REACH,
+            apart,
+            at_deg: tpl.angle_at(mid),
+            part_lacks: lacks,
+        })
     };
     let all =
         runs(&placed, &missing, min_run).into_iter().map(|r| (r, true)).chain(runs(own, &extra, min_run).into_iter().map(|r| (r, false)));

@@ -340,7 +340,16 @@ fn where_templates_differ_decides_a_tie() {
             confidence: 0.8,
             local: Some(local(0.95, 0.0)),
         });
-        m.departure = Some(Departure { len: 90.0, width: 40.0, depth, apart: 6.0, at_deg: 40.0, part_lacks: false, less_material: false });
+        m.departure = Some(Departure {
+            len: 90.0,
+            width: 40.0,
+            depth,
+            apart: 6.0,
+            reach: 24.0,
+            at_deg: 40.0,
+            part_lacks: false,
+            less_material: false,
+        });
         decide(m, limits())
     };
     assert_eq!(departing(10.0).verdict, Verdict::Accept);
@@ -353,7 +362,8 @@ fn where_templates_differ_decides_a_tie() {
     // enrolled (nothing tied: no "not ..."), a slit as deep but narrow is not.
     let alone = |depth: f64, width: f64| {
         let mut m = separate();
-        m.departure = Some(Departure { len: 90.0, width, depth, apart: 6.0, at_deg: 250.0, part_lacks: false, less_material: true });
+        m.departure =
+            Some(Departure { len: 90.0, width, depth, apart: 6.0, reach: 24.0, at_deg: 250.0, part_lacks: false, less_material: true });
         decide(m, limits())
     };
     assert_eq!(alone(24.0, 10.0).verdict, Verdict::Accept);
@@ -385,6 +395,42 @@ fn where_templates_differ_decides_a_tie() {
     }
 }
 
+/// A part that ties with a rival and follows neither clearly where the two differ is ambiguous;
+/// departing from the best besides, deep and wide, it is a type not enrolled. At a loose fit's
+/// `apart` (half the reach or more) a lug as deep as the reach counts there, and only there.
+#[test]
+fn a_tie_the_stretches_do_not_tell_with_a_deep_departure_is_a_type_not_enrolled() {
+    let tied = |departure: Option<Departure>| {
+        let mut m = separate();
+        m.rival = Some(Rival {
+            name: named("bracket", Face::Down),
+            fit: 0.95,
+            best: 0.95,
+            tolerance: 1.6,
+            support: None,
+            confidence: 0.8,
+            local: Some(local(0.0, 0.58)),
+        });
+        m.departure = departure;
+        decide(m, limits())
+    };
+    let lug = |depth: f64, apart: f64| {
+        Some(Departure { len: 229.0, width: 60.0, depth, apart, reach: 24.0, at_deg: 37.0, part_lacks: false, less_material: false })
+    };
+    assert_eq!(tied(None).verdict.reason(), Reason::Ambiguous);
+    // Shallow: the stretches still do not tell.
+    assert_eq!(tied(lug(10.0, 6.0)).verdict.reason(), Reason::Ambiguous);
+    let d = tied(lug(24.0, 6.0));
+    assert!(matches!(&d.verdict, Verdict::Unlike { rival: Some(_), departure: Some(_), .. }), "{}", d.verdict);
+    assert_eq!(failed_rows(&d), ["confidence lead over bracket down"]);
+    // apart 12.2: 2 x apart is beyond the reach, yet a depth at the reach counts in the tie...
+    assert_eq!(tied(lug(24.0, 12.2)).verdict.reason(), Reason::UnknownType);
+    // ...and not for a part without one, where a stain against a blurred part reaches as deep.
+    let mut m = separate();
+    m.departure = lug(24.0, 12.2);
+    assert_eq!(decide(m, limits()).verdict, Verdict::Accept);
+}
+
 /// A part alone in its region whose outline its best template does not all explain is the part
 /// that differs (a type not enrolled, named by where), not one something lies on; with another
 /// part found beside it, something does.
@@ -395,7 +441,16 @@ fn alone_in_its_region_a_part_not_all_explained_is_a_type_not_enrolled() {
     let d = decide(m.clone(), limits());
     assert_eq!(d.verdict.reason(), Reason::Touching, "{}", d.verdict);
     m.alone = true;
-    m.departure = Some(Departure { len: 120.0, width: 40.0, depth: 24.0, apart: 6.0, at_deg: 95.0, part_lacks: true, less_material: true });
+    m.departure = Some(Departure {
+        len: 120.0,
+        width: 40.0,
+        depth: 24.0,
+        apart: 6.0,
+        reach: 24.0,
+        at_deg: 95.0,
+        part_lacks: true,
+        less_material: true,
+    });
     let d = decide(m, limits());
     assert!(matches!(&d.verdict, Verdict::Unlike { rival: None, departure: Some(_), .. }), "{}", d.verdict);
     assert_eq!(d.verdict.reason(), Reason::UnknownType);
