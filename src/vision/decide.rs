@@ -191,6 +191,16 @@ impl fmt::Display for Verdict {
             }
             Verdict::Rival { rival } => {
                 write!(f, "{} fits almost as well ({:.3}) and its line features are not clearly worse", rival.name, rival.fit)?;
+                if let Some(x) = rival.features {
+                    write!(
+                        f,
+                        ", nor do the features inside tell (the best's own shown {:.0} % of {}, the rival's {:.0} % of {})",
+                        100.0 * x.a_shown,
+                        x.a_count,
+                        100.0 * x.b_shown,
+                        x.b_count
+                    )?;
+                }
                 match rival.local {
                     Some(l) if l.best_len == 0.0 && l.rival_len == 0.0 && l.hidden_len == 0.0 => {
                         write!(f, "; their outlines are nowhere {:.1} px apart", l.apart)
@@ -270,7 +280,43 @@ pub struct Rival {
     pub confidence: f64,
     /// Where it and the best differ and what the part does there, when measured.
     pub local: Option<Local>,
+    /// What the image shows of the best's own interior features and of its own (holes,
+    /// pockets, bosses one has where the other has none), each at its pose; measured where the
+    /// outlines do not tell (a part whose two faces have one outline: only what lies inside
+    /// tells them). `a` is the best, `b` the rival.
+    pub features: Option<OwnFeatures>,
 }
+
+/// What the image shows of two templates' own interior features, each at its pose: the
+/// features one has and the other lacks there (no feature of the other within two decimated
+/// pixels), as the outline's stretches where two templates differ. Two faces of one outline
+/// share their through-holes; a pocket or boss on one face only is what tells them apart.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OwnFeatures {
+    /// How many of the first template's own features lie in the frame.
+    pub a_count: usize,
+    /// The share of them the image shows with their polarity.
+    pub a_shown: f64,
+    /// See `a_count`, for the second template.
+    pub b_count: usize,
+    /// See `a_shown`, for the second template.
+    pub b_shown: f64,
+}
+
+impl OwnFeatures {
+    /// The same, the second template first.
+    pub fn reversed(self) -> Self {
+        Self { a_count: self.b_count, a_shown: self.b_shown, b_count: self.a_count, b_shown: self.a_shown }
+    }
+}
+
+/// Least share of the best's own interior features the image must show for them to tell.
+pub const FEATURES_SHOWN: f64 = 0.6;
+/// Most share of the rival's own interior features the image may show for them to tell.
+pub const FEATURES_RIVAL: f64 = 0.3;
+/// Fewest own features that count: a few points of a feature placed a little differently by
+/// the two poses are not a feature of one's own.
+pub const FEATURES_MIN: usize = 12;
 
 impl Rival {
     /// Whether its outline ties with the best's: every fit measured of it within the ambiguity
@@ -278,6 +324,18 @@ impl Rival {
     pub fn ties(&self, l: &Limits) -> bool {
         let within = |rival: f64, best: f64| rival >= best - l.ambiguity_margin;
         within(self.fit, self.best) && self.support.is_none_or(|(rival, best)| within(rival, best))
+    }
+
+    /// Whether the features inside tell the best from it: one of the two has own features
+    /// ([`FEATURES_MIN`]); the image shows most of the best's, if it has any
+    /// ([`FEATURES_SHOWN`]), and little of the rival's, if it has any ([`FEATURES_RIVAL`]). A
+    /// wrong face placed on the right one shows few of its own: its pockets lie where the part
+    /// has none.
+    pub fn features_tell(&self) -> bool {
+        self.features.is_some_and(|f| {
+            let (a, b) = (f.a_count >= FEATURES_MIN, f.b_count >= FEATURES_MIN);
+            (a || b) && (!a || f.a_shown >= FEATURES_SHOWN) && (!b || f.b_shown <= FEATURES_RIVAL)
+        })
     }
 }
 
@@ -633,7 +691,8 @@ fn ladder(m: &Measured, l: &Limits, mut seen: impl FnMut(Test, bool)) -> Option<
         let follows = r.local.map(|x| x.follows());
         let pass = !r.ties(l)
             || follows == Some(Follows::Best)
-            || (matches!(follows, None | Some(Follows::Unclear)) && lines.confidence - r.confidence >= l.confidence_margin);
+            || (matches!(follows, None | Some(Follows::Unclear))
+                && (lines.confidence - r.confidence >= l.confidence_margin || r.features_tell()));
         if test(Test::Rival, pass) {
             let departs = m.departure.filter(|d| d.counts_in_a_tie(l));
             return Some(match (follows, best_named(m)) {
@@ -826,8 +885,18 @@ impl Decision {
                             format!("confidence lead over {}", r.name),
                             f3(lines.confidence - r.confidence),
                             format!(">= {:.2}", l.confidence_margin),
-                            pass,
+                            if r.features.is_some() { None } else { pass },
                         ));
+                        if let Some(x) = r.features {
+                            out.push(Measure::new(
+                                format!("own features inside shown, best vs {}", r.name),
+                                format!("{:.2} of {} vs {:.2} of {}", x.a_shown, x.a_count, x.b_shown, x.b_count),
+                                format!(
+                                    "of >= {FEATURES_MIN}: best's >= {FEATURES_SHOWN:.2}, rival's <= {FEATURES_RIVAL:.2}; or the confidence lead"
+                                ),
+                                pass,
+                            ));
+                        }
                     }
                 }
                 Test::Departure => {
@@ -910,6 +979,9 @@ impl fmt::Display for Decision {
                 write!(f, ", support {s:.3} vs {b:.3}")?;
             }
             write!(f, ", confidence {:.3}", r.confidence)?;
+            if let Some(x) = r.features {
+                write!(f, ", own features inside shown {:.2} of {} vs {:.2} of {}", x.a_shown, x.a_count, x.b_shown, x.b_count)?;
+            }
         }
         Ok(())
     }

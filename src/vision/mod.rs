@@ -693,6 +693,7 @@ impl Estimator {
             support: Some((other.support, best.support)),
             confidence: if segments.is_empty() { 0.0 } else { confidence(&tpl.segments, segments, &other.reg.pose, diag, lambda) },
             local: Some(differ::compare(seen.outline_index, placed(best), placed(other), seen.excused, tight, apart, min_run)),
+            features: None,
         }
     }
 
@@ -749,7 +750,18 @@ impl Estimator {
         }
         let t = Instant::now();
         let lambda = self.lambda(noise, contrast);
+        let edge = shape::EdgeTest::new(coarse, noise, contrast);
         m.rival = self.rival(&outline, &mut cands, &est.segments, diag, lambda, &limits);
+        // Where the outlines do not tell the two apart, what lies inside may; when it tells for
+        // the rival, the rival is the part (registered fully, first in `cands`, ties looked at
+        // again from it).
+        if let Some(k) = self.inside(&mut m.rival, &cands, &edge, &limits) {
+            let e = &self.lib.entries[cands[k].entry];
+            cands[k].reg = register::register(&outline, &e.index, cands[k].reg.pose, cands[k].tolerance, 1);
+            cands.swap(0, k);
+            m.rival = self.rival(&outline, &mut cands, &est.segments, diag, lambda, &limits);
+            self.inside(&mut m.rival, &cands, &edge, &limits);
+        }
         tm.confidence += ms(t);
         if cands[0].entry != est.matched.map_or(usize::MAX, |(e, _)| e) {
             fitted(&mut est, &cands[0]);
@@ -956,11 +968,29 @@ impl Estimator {
                     support: None,
                     confidence: 0.0,
                     local: None,
+                    features: None,
                 };
                 (k, rival)
             })
             .filter(|(_, r)| r.ties(limits))
             .collect()
+    }
+
+    /// What the image shows inside the part of the best's and a tied `rival`'s own features
+    /// (`Rival::features`), measured when the outlines do not tell the two apart; the rival's
+    /// index in `cands` when they tell for the rival instead of the best.
+    fn inside(&self, rival: &mut Option<Rival>, cands: &[Candidate], edge: &shape::EdgeTest<'_>, limits: &decide::Limits) -> Option<usize> {
+        let r = rival.as_mut()?;
+        if !r.ties(limits) || !matches!(r.local.map(|l| l.follows()), None | Some(Follows::Unclear)) {
+            return None;
+        }
+        let k = cands.iter().position(|c| named(&self.lib.entries[c.entry].template) == r.name)?;
+        let (best, other) = (&cands[0], &cands[k]);
+        let interior = |c: &Candidate| self.lib.entries[c.entry].template.interior.as_slice();
+        let f = shape::own_features(edge, (interior(best), &best.reg.pose), (interior(other), &other.reg.pose));
+        r.features = Some(f);
+        let reversed = Rival { features: Some(f.reversed()), ..r.clone() };
+        (!r.features_tell() && reversed.features_tell()).then_some(k)
     }
 
     /// Where candidates `best` and `rival` differ on the part (outline `part`), at the tight

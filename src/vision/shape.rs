@@ -5,8 +5,9 @@
 
 use opencv::prelude::*;
 
+use super::decide::OwnFeatures;
 use super::detect::Coarse;
-use super::geometry::{Pt, contains, outward_normals, resample_closed, smooth_closed};
+use super::geometry::{Affine, Pt, Similarity, contains, outward_normals, resample_closed, smooth_closed};
 use super::register::OutlineIndex;
 
 /// Width below which a gap between two lobes of a template's outline is not verified, template
@@ -190,6 +191,25 @@ impl<'a> EdgeTest<'a> {
         }
         signed
     }
+}
+
+/// [`OwnFeatures`] of templates `a` and `b` (their interior features, see [`interior_edges`], and
+/// poses): a feature shows where the step across it, from the brighter side to the darker,
+/// reaches the edge threshold.
+pub(super) fn own_features(edge: &EdgeTest<'_>, a: (&[(Pt, Pt)], &Similarity), b: (&[(Pt, Pt)], &Similarity)) -> OwnFeatures {
+    let placed = |(interior, pose): (&[(Pt, Pt)], &Similarity)| -> Vec<(Pt, Pt)> {
+        let (to_frame, turn) = (pose.forward(), Affine::rotation(pose.angle_rad));
+        interior.iter().map(|&(q, n)| (to_frame.apply(q), turn.apply(n))).filter(|&(at, _)| edge.sample(at).is_some()).collect()
+    };
+    let (pa, pb) = (placed(a), placed(b));
+    let near = 2.0 * edge.factor as f64;
+    let own = |this: &[(Pt, Pt)], other: &[(Pt, Pt)]| -> (usize, f64) {
+        let mine: Vec<&(Pt, Pt)> = this.iter().filter(|(p, _)| !other.iter().any(|(q, _)| (*p - *q).norm() <= near)).collect();
+        let shown = mine.iter().filter(|(p, n)| edge.across(*p, *n) >= edge.threshold).count();
+        (mine.len(), if mine.is_empty() { 0.0 } else { shown as f64 / mine.len() as f64 })
+    };
+    let ((a_count, a_shown), (b_count, b_shown)) = (own(&pa, &pb), own(&pb, &pa));
+    OwnFeatures { a_count, a_shown, b_count, b_shown }
 }
 
 /// Least distance of an interior edge from the part's outline, frame pixels: three decimated

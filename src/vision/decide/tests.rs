@@ -178,6 +178,7 @@ fn failures() -> Vec<Failure> {
                     support,
                     confidence: 0.7,
                     local: None,
+                    features: None,
                 })
             },
             verdict: |v| matches!(v, Verdict::Rival { rival } if rival.name.face == Face::Down),
@@ -272,6 +273,7 @@ fn every_verdict_is_reached_and_both_paths_agree() {
             support: m.region.as_ref().map(|r| (r.support, r.support)),
             confidence: 0.2,
             local: Some(local(0.1, 0.05)),
+            features: None,
         });
         let d = decide(m, limits());
         assert!(matches!(&d.verdict, Verdict::Unlike { like, .. } if like.type_name == "bracket"), "{path}: {}", d.verdict);
@@ -311,8 +313,16 @@ fn local(best_follows: f64, rival_follows: f64) -> Local {
 fn where_templates_differ_decides_a_tie() {
     let tie = |local: Option<Local>, confidence: f64| {
         let mut m = separate();
-        m.rival =
-            Some(Rival { name: named("bracket", Face::Down), fit: 0.95, best: 0.95, tolerance: 1.6, support: None, confidence, local });
+        m.rival = Some(Rival {
+            name: named("bracket", Face::Down),
+            fit: 0.95,
+            best: 0.95,
+            tolerance: 1.6,
+            support: None,
+            confidence,
+            local,
+            features: None,
+        });
         decide(m, limits()).verdict
     };
     // The part follows the best where they differ: accepted even though the lines tie.
@@ -339,6 +349,7 @@ fn where_templates_differ_decides_a_tie() {
             support: None,
             confidence: 0.8,
             local: Some(local(0.95, 0.0)),
+            features: None,
         });
         m.departure = Some(Departure {
             len: 90.0,
@@ -410,6 +421,7 @@ fn a_tie_the_stretches_do_not_tell_with_a_deep_departure_is_a_type_not_enrolled(
             support: None,
             confidence: 0.8,
             local: Some(local(0.0, 0.58)),
+            features: None,
         });
         m.departure = departure;
         decide(m, limits())
@@ -503,6 +515,7 @@ fn a_rival_rejects_only_when_it_ties_and_its_lines_are_not_clearly_worse() {
         support,
         confidence,
         local: None,
+        features: None,
     };
     let l = limits();
     assert!(rival(0.86, None, 0.0).ties(&l));
@@ -559,8 +572,16 @@ fn measures_say_which_limit_a_part_failed() {
 
 #[test]
 fn each_verdict_gives_its_reason() {
-    let rival =
-        Rival { name: named("bracket", Face::Up), fit: 0.9, best: 0.91, tolerance: 3.0, support: None, confidence: 0.7, local: None };
+    let rival = Rival {
+        name: named("bracket", Face::Up),
+        fit: 0.9,
+        best: 0.91,
+        tolerance: 3.0,
+        support: None,
+        confidence: 0.7,
+        local: None,
+        features: None,
+    };
     for (v, r) in [
         (Verdict::Accept, Reason::Ok),
         (Verdict::AtBorder { lo: Pt::new(0.0, 0.0), hi: Pt::new(9.0, 9.0) }, Reason::AtBorder),
@@ -595,4 +616,49 @@ fn the_text_names_the_verdict_first_then_the_evidence() {
     );
     let far = Verdict::Foreign { extra: 0.2, missing: 0.0, limit: 0.06 };
     assert!(far.to_string().starts_with("the outline runs onto something else"), "{far}");
+}
+
+/// The features inside tell the best from a tied rival when one has own features: most of the
+/// best's shown, little of the rival's.
+#[test]
+fn own_features_inside_tell_faces_of_one_outline() {
+    let tells = |a_count: usize, a_shown: f64, b_count: usize, b_shown: f64| {
+        let features = Some(OwnFeatures { a_count, a_shown, b_count, b_shown });
+        Rival {
+            name: named("bracket", Face::Down),
+            fit: 1.0,
+            best: 1.0,
+            tolerance: 2.0,
+            support: None,
+            confidence: 0.7,
+            local: None,
+            features,
+        }
+        .features_tell()
+    };
+    assert!(tells(52, 1.0, 0, 0.0));
+    assert!(tells(0, 0.0, 52, 0.0));
+    assert!(tells(40, 0.8, 30, 0.2));
+    assert!(!tells(0, 0.0, 0, 0.0), "neither has own features");
+    assert!(!tells(0, 0.0, 52, 1.0), "the rival's pocket shows");
+    assert!(!tells(52, 0.4, 0, 0.0), "the best's pocket hardly shows");
+    assert!(!tells(40, 0.9, 30, 0.5), "both show");
+    assert!(tells(40, 0.9, 5, 1.0), "a few points of the rival's are not a feature");
+    // In the ladder: the same tie, ambiguous without the features, accepted with them.
+    let mut m = separate();
+    let rival = |features| Rival {
+        name: named("bracket", Face::Down),
+        fit: 1.0,
+        best: 1.0,
+        tolerance: 2.0,
+        support: None,
+        confidence: m.lines.as_ref().unwrap().confidence,
+        local: Some(Local { best_len: 0.0, rival_len: 0.0, ..local(0.0, 0.0) }),
+        features,
+    };
+    let (without, with) = (rival(None), rival(Some(OwnFeatures { a_count: 52, a_shown: 1.0, b_count: 0, b_shown: 0.0 })));
+    m.rival = Some(without);
+    assert_eq!(decide(m.clone(), limits()).verdict.reason(), Reason::Ambiguous);
+    m.rival = Some(with);
+    assert_eq!(decide(m, limits()).verdict, Verdict::Accept);
 }
