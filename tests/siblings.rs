@@ -6,7 +6,7 @@ use lfi_bridge::sim::catalog::{self, Catalogue};
 use lfi_bridge::sim::render::{self, Lighting, Placement, Prepared};
 use lfi_bridge::sim::{SimConfig, Simulator};
 use lfi_bridge::vision::decide::Verdict;
-use lfi_bridge::vision::{Estimator, Face, Params, Reason, Template};
+use lfi_bridge::vision::{Estimator, Face, Library, Params, Reason, Template};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -125,6 +125,32 @@ fn an_unseen_next_revision_is_a_type_not_enrolled() {
             eprintln!("{} {face} at {angle:.0} deg: {}: {}", unseen.name, p.reason, p.detail());
             assert_eq!(p.reason, Reason::UnknownType, "{}", p.detail());
             assert!(p.detail().starts_with(&format!("like {parent} ")) && p.detail().contains(" except "), "{}", p.detail());
+        }
+    }
+}
+
+/// Every revision sibling is a look-alike of its parent, face by face (`Library::alike`), so that
+/// a region search that finds one holds the other against it; an unrelated type is not.
+#[test]
+fn revision_siblings_are_look_alikes_of_each_other() {
+    let c = catalog::generate(40, SEED);
+    let sim = simulator(&c);
+    let pairs: Vec<(&str, &str)> =
+        c.types.iter().filter(|t| t.known).filter_map(|t| Some((t.name.as_str(), t.parent.as_deref()?))).take(3).collect();
+    let unrelated =
+        c.types.iter().find(|t| t.known && t.parent.is_none() && !c.types.iter().any(|o| o.parent.as_deref() == Some(&t.name))).unwrap();
+    for &(child, parent) in &pairs {
+        let templates = enrolled(&sim, &[parent, child, &unrelated.name]);
+        let lib = Library::new(&templates, Params::default().signal_bins);
+        for (i, t) in templates.iter().enumerate() {
+            let alike: Vec<(&str, Face)> =
+                lib.alike[i].iter().map(|&(j, _)| (templates[j].type_name.as_str(), templates[j].face)).collect();
+            if t.type_name == unrelated.name {
+                assert!(alike.iter().all(|(n, _)| *n == unrelated.name), "{} {}: {alike:?}", t.type_name, t.face);
+                continue;
+            }
+            let sibling = if t.type_name == parent { child } else { parent };
+            assert!(alike.contains(&(sibling, t.face)), "{} {}: look-alikes {alike:?}, not {sibling}", t.type_name, t.face);
         }
     }
 }

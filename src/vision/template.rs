@@ -5,7 +5,7 @@ use super::boundary;
 use super::correlate::{Alignment, Correlator, Key, Spectrum};
 use super::detect::{self, DetectParams};
 use super::frame::{FrameError, GrayView};
-use super::geometry::{Pt, area_centroid, bounds};
+use super::geometry::{Pt, Similarity, area_centroid, bounds};
 use super::lines::{self, Segment};
 use super::params::Params;
 use super::part::Face;
@@ -215,7 +215,17 @@ pub struct Library {
     pub entries: Vec<Compiled>,
     /// The correlator sized to the signals.
     pub correlator: Correlator,
+    /// For each template, the others whose signal lies within [`ALIKE_CORR`] of its own (another
+    /// face of a symmetric part, a revision sibling), each with its pose relative to it:
+    /// (entry, template pixels of the other to this one's).
+    pub alike: Vec<Vec<(usize, Similarity)>>,
 }
+
+/// Correlation distance within which two templates are look-alikes: revision siblings of the
+/// catalogues measure 0.04-0.07 and two faces of one type 0.03-0.13, different types 0.09 and
+/// more (simulated catalogue of seed 41); a look-alike is looked at wherever a region search
+/// finds its twin, so that the two are always held against each other.
+pub const ALIKE_CORR: f64 = 0.1;
 
 impl Library {
     /// Compiles `templates` with signals of `bins` bins.
@@ -236,8 +246,29 @@ impl Library {
                     shape: ShapeModel::new(&t.outline, t.centroid),
                 }
             })
+            .collect::<Vec<Compiled>>();
+        let alike = entries
+            .iter()
+            .enumerate()
+            .map(|(i, e)| {
+                let near = nearest_of(&entries, &correlator, &e.spectrum, 4);
+                near.into_iter()
+                    .filter(|&(j, al)| j != i && al.rms <= ALIKE_CORR)
+                    .map(|(j, al)| {
+                        let o = &entries[j].template;
+                        // The other's outline placed on this one's, as a part's would be.
+                        let rel = Similarity {
+                            from: o.centroid,
+                            to: e.template.centroid,
+                            angle_rad: al.shift / correlator.bins() as f64 * std::f64::consts::TAU,
+                            scale: al.scale,
+                        };
+                        (j, rel)
+                    })
+                    .collect()
+            })
             .collect();
-        Self { entries, correlator }
+        Self { entries, correlator, alike }
     }
 
     /// Every template by correlation distance to `part` (best first): the slow way, for
@@ -256,9 +287,16 @@ impl Library {
     /// template is passed over only when its bound exceeds the `need`-th distance by
     /// [`SHORTLIST_SLACK`] (relative) plus 0.001.
     pub fn nearest(&self, part: &Spectrum, need: usize) -> Vec<(usize, Alignment)> {
-        let n = self.correlator.bins();
+        nearest_of(&self.entries, &self.correlator, part, need)
+    }
+}
+
+/// [`Library::nearest`] over `entries`.
+fn nearest_of(entries: &[Compiled], correlator: &Correlator, part: &Spectrum, need: usize) -> Vec<(usize, Alignment)> {
+    {
+        let n = correlator.bins();
         let key = Key::of(part);
-        let mut order: Vec<(usize, f64)> = self.entries.iter().enumerate().map(|(i, e)| (i, key.bound(&e.key, n))).collect();
+        let mut order: Vec<(usize, f64)> = entries.iter().enumerate().map(|(i, e)| (i, key.bound(&e.key, n))).collect();
         order.sort_by(|a, b| a.1.total_cmp(&b.1));
         let mut aligned: Vec<(usize, Alignment)> = Vec::with_capacity(need + 4);
         for (i, bound) in order {
@@ -269,7 +307,7 @@ impl Library {
                     break;
                 }
             }
-            aligned.push((i, self.correlator.align(part, &self.entries[i].spectrum)));
+            aligned.push((i, correlator.align(part, &entries[i].spectrum)));
         }
         aligned.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms).then(a.0.cmp(&b.0)));
         aligned.truncate(need.max(1));

@@ -65,6 +65,7 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         take(&look, region, hyps, &mut found, &mut masks);
     }
     let (mut found, masks, keep) = one_per_part(lib, found, masks);
+    look_alikes(&look, region, &mut found, &keep);
     layer::order(lib, region, &look.edge, &mut found, &masks, &keep);
     let kept: Vec<&Mat> = keep.iter().map(|&i| &masks[i]).collect();
     let leftover = leftover::pieces(region, &kept, min_leftover).unwrap_or_default();
@@ -127,6 +128,38 @@ fn one_per_part(lib: &Library, found: Vec<Found>, masks: Vec<Mat>) -> (Vec<Found
         }
     }
     (found, masks, keep)
+}
+
+/// A kept part is held against its look-alikes (`Library::alike`: another face of one outline,
+/// a revision sibling): each is looked at at the part's pose, and the best supported that the
+/// image explains becomes its rival when it is better supported than the rival the search found
+/// (if any), to be told apart where the two differ.
+/// The vote ranks hypotheses by their share of votes and keeps a few, so a sibling explaining
+/// the same material as well may never be looked at; a part would then be accepted without
+/// ever being compared with the type it may be.
+fn look_alikes(look: &Look<'_>, region: &Region<'_>, found: &mut [Found], keep: &[usize]) {
+    let todo: Vec<usize> = keep.iter().copied().filter(|&k| !look.lib.alike[found[k].entry].is_empty()).collect();
+    let rivals = each(region.pool, &todo, |&k| {
+        let f = &found[k];
+        let pose = f.reg.pose;
+        look.lib.alike[f.entry]
+            .iter()
+            .filter_map(|&(j, rel)| {
+                let init = Similarity {
+                    from: rel.from,
+                    to: pose.apply(rel.to),
+                    angle_rad: pose.angle_rad + rel.angle_rad,
+                    scale: pose.scale * rel.scale,
+                };
+                look.at(j, look.aim(j, init)).map(|x| (j, x.reg, x.support))
+            })
+            .max_by(|a, b| a.2.total_cmp(&b.2))
+    });
+    for (k, rival) in todo.into_iter().zip(rivals) {
+        if let Some(r) = rival.filter(|r| found[k].rival.is_none_or(|old| r.2 > old.2)) {
+            found[k].rival = Some(r);
+        }
+    }
 }
 
 /// The kept parts, with `under` renumbered from all explanations to the kept ones.
