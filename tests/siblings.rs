@@ -56,6 +56,11 @@ fn model<'a>(c: &'a Catalogue, name: &str) -> &'a lfi_bridge::sim::models::Model
     c.known.iter().chain(&c.unknown).find(|m| m.name == name).unwrap()
 }
 
+/// The first three enrolled revision pairs of the catalogue: (child, parent).
+fn revision_pairs(c: &Catalogue) -> Vec<(&str, &str)> {
+    c.types.iter().filter(|t| t.known).filter_map(|t| Some((t.name.as_str(), t.parent.as_deref()?))).take(3).collect()
+}
+
 fn simulator(c: &Catalogue) -> Simulator {
     Simulator::with_catalogue(SimConfig { width: 1600, height: 1200, seed: SEED, noise: None }, c).unwrap()
 }
@@ -66,8 +71,7 @@ fn simulator(c: &Catalogue) -> Simulator {
 fn each_revision_sibling_is_named_as_itself() {
     let c = catalog::generate(40, SEED);
     let sim = simulator(&c);
-    let pairs: Vec<(&str, &str)> =
-        c.types.iter().filter(|t| t.known).filter_map(|t| Some((t.name.as_str(), t.parent.as_deref()?))).take(3).collect();
+    let pairs = revision_pairs(&c);
     assert!(pairs.len() >= 3, "revision pairs: {pairs:?}");
     let mut rng = ChaCha8Rng::seed_from_u64(SEED);
     let (mut named, mut accepted, mut total) = (0, 0, 0);
@@ -135,8 +139,7 @@ fn an_unseen_next_revision_is_a_type_not_enrolled() {
 fn revision_siblings_are_look_alikes_of_each_other() {
     let c = catalog::generate(40, SEED);
     let sim = simulator(&c);
-    let pairs: Vec<(&str, &str)> =
-        c.types.iter().filter(|t| t.known).filter_map(|t| Some((t.name.as_str(), t.parent.as_deref()?))).take(3).collect();
+    let pairs = revision_pairs(&c);
     let unrelated =
         c.types.iter().find(|t| t.known && t.parent.is_none() && !c.types.iter().any(|o| o.parent.as_deref() == Some(&t.name))).unwrap();
     for &(child, parent) in &pairs {

@@ -133,6 +133,7 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     let spread = 1.4826 * median(&mut dev) + 1.0;
     // The edge is the outermost crossing: stable on the soft shading ramps of rounded parts,
     // where a gradient peak wanders, and at the true edge of a sharp step.
+    let contrast = (l_part - l_belt).abs();
     let mut offsets = vec![f64::NAN; n];
     // Whether the material inside each point rises to half the part's contrast (see
     // `drop_faint_spurs`).
@@ -140,7 +141,7 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
     for i in 0..n {
         let prof = &sm[i * k..(i + 1) * k];
         let belt = (prof[k - ends..].iter().sum::<f64>() / ends as f64).clamp(l_belt - 3.0 * spread, l_belt + 3.0 * spread);
-        solid[i] = prof[..half as usize].iter().any(|&v| sign * (v - belt) >= 0.5 * (l_part - l_belt).abs());
+        solid[i] = prof[..half as usize].iter().any(|&v| sign * (v - belt) >= 0.5 * contrast);
         let level = belt + sign * rise;
         let is_part = |v: f64| if brighter { v >= level } else { v <= level };
         if let Some(j) = (0..k - 1).rev().find(|&j| is_part(prof[j]))
@@ -151,7 +152,6 @@ pub fn refine(frame: GrayView<'_>, coarse: &[Pt], noise: f64, p: &RefineParams) 
             offsets[i] = ts[j] + frac * STEP;
         }
     }
-    let contrast = (l_part - l_belt).abs();
     clean_offsets(&mut offsets);
     let kept: Vec<usize> = (0..n).filter(|&i| offsets[i].is_finite()).collect();
     if kept.len() < n / 2 {
@@ -189,9 +189,8 @@ fn depth(pts: &[Pt]) -> f64 {
 /// `neck` px (the points just before and after it come that close) and adding area outside the
 /// rest of the outline by more than [`SPUR_DEPTH`]; the outline then goes straight across the neck.
 /// The neck may be as wide as the closing's reach, which joined the stain to the part: `neck` is
-/// twice the refinement's search. Faint material that widens
-/// the part along its side (a dark rim, a shaded flank) has no neck and stays, as does a spur of
-/// the part's own bright material.
+/// twice the refinement's search. Faint material that widens the part along its side (a dark
+/// rim, a shaded flank) has no neck and stays, as does a spur of the part's own bright material.
 fn drop_faint_spurs(outline: Vec<Pt>, solid: &[bool], neck: f64) -> Vec<Pt> {
     let n = outline.len();
     if n < 4 * NECK_REACH || solid.iter().all(|&s| s) {

@@ -308,6 +308,16 @@ impl OwnFeatures {
     pub fn reversed(self) -> Self {
         Self { a_count: self.b_count, a_shown: self.b_shown, b_count: self.a_count, b_shown: self.a_shown }
     }
+
+    /// Whether they tell the first template from the second: one of the two has own features
+    /// ([`FEATURES_MIN`]); the image shows most of the first's, if it has any
+    /// ([`FEATURES_SHOWN`]), and little of the second's, if it has any ([`FEATURES_RIVAL`]). A
+    /// wrong face placed on the right one shows few of its own: its pockets lie where the part
+    /// has none.
+    pub fn tell(&self) -> bool {
+        let (a, b) = (self.a_count >= FEATURES_MIN, self.b_count >= FEATURES_MIN);
+        (a || b) && (!a || self.a_shown >= FEATURES_SHOWN) && (!b || self.b_shown <= FEATURES_RIVAL)
+    }
 }
 
 /// Least share of the best's own interior features the image must show for them to tell.
@@ -326,16 +336,9 @@ impl Rival {
         within(self.fit, self.best) && self.support.is_none_or(|(rival, best)| within(rival, best))
     }
 
-    /// Whether the features inside tell the best from it: one of the two has own features
-    /// ([`FEATURES_MIN`]); the image shows most of the best's, if it has any
-    /// ([`FEATURES_SHOWN`]), and little of the rival's, if it has any ([`FEATURES_RIVAL`]). A
-    /// wrong face placed on the right one shows few of its own: its pockets lie where the part
-    /// has none.
+    /// Whether the features inside tell the best from it ([`OwnFeatures::tell`]).
     pub fn features_tell(&self) -> bool {
-        self.features.is_some_and(|f| {
-            let (a, b) = (f.a_count >= FEATURES_MIN, f.b_count >= FEATURES_MIN);
-            (a || b) && (!a || f.a_shown >= FEATURES_SHOWN) && (!b || f.b_shown <= FEATURES_RIVAL)
-        })
+        self.features.is_some_and(|f| f.tell())
     }
 }
 

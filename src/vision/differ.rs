@@ -12,6 +12,7 @@ use super::decide::{Departure, Local};
 use super::frame::GrayView;
 use super::geometry::{Pt, Similarity};
 use super::register::{MAX_REACH, OutlineIndex};
+use super::template::{ALIKE_CORR, Library, placed};
 
 /// How far apart two outlines must be to differ, and along how much of them, when an outline
 /// within `near` of another counts as on it: three times it (a notch or lug shallower than that
@@ -447,9 +448,9 @@ impl Alike {
 /// The pairs of templates (of another type or face) whose outlines fit each other at least
 /// `min_fit` at tolerance `near` (px, a clean outline's), and where they differ: by three times
 /// `near` over runs twice that ([`separation`]), the separation the estimator tells siblings
-/// apart by in the cleanest frame. Pairs whose log-polar signals differ by more than 0.1 are
-/// not registered: their outlines differ everywhere.
-pub fn alike(lib: &super::template::Library, near: f64, min_fit: f64) -> Vec<Alike> {
+/// apart by in the cleanest frame. Pairs whose log-polar signals differ by more than
+/// [`ALIKE_CORR`] are not registered: their outlines differ everywhere.
+pub fn alike(lib: &Library, near: f64, min_fit: f64) -> Vec<Alike> {
     let (apart, min_run) = separation(near);
     let corr = &lib.correlator;
     let mut out = Vec::new();
@@ -459,15 +460,10 @@ pub fn alike(lib: &super::template::Library, near: f64, min_fit: f64) -> Vec<Ali
                 continue;
             }
             let al = corr.align(&b.spectrum, &a.spectrum);
-            if al.rms > 0.1 {
+            if al.rms > ALIKE_CORR {
                 continue;
             }
-            let init = Similarity {
-                from: a.template.centroid,
-                to: b.template.centroid,
-                angle_rad: (al.shift / corr.bins() as f64) * std::f64::consts::TAU,
-                scale: al.scale,
-            };
+            let init = placed(corr, &al, a.template.centroid, b.template.centroid);
             let reg = super::register::register(&b.template.outline, &a.index, init, near, 1);
             if reg.fit() < min_fit {
                 continue;

@@ -889,12 +889,7 @@ impl Estimator {
             .filter(|(rank, (_, al))| *rank == 0 || al.rms <= 3.0 * best_rms + 0.02)
             .map(|(rank, &(i, al))| {
                 let e = &self.lib.entries[i];
-                let init = Similarity {
-                    from: e.template.centroid,
-                    to: centroid,
-                    angle_rad: (al.shift / corr.bins() as f64) * std::f64::consts::TAU,
-                    scale: al.scale,
-                };
+                let init = template::placed(corr, &al, e.template.centroid, centroid);
                 let tolerance = self.tolerance(i, noise);
                 // The closest is given up early when most of the outline is not near it at all
                 // (several parts in one region: the region search takes over), well below the
@@ -989,8 +984,7 @@ impl Estimator {
         let interior = |c: &Candidate| self.lib.entries[c.entry].template.interior.as_slice();
         let f = shape::own_features(edge, (interior(best), &best.reg.pose), (interior(other), &other.reg.pose));
         r.features = Some(f);
-        let reversed = Rival { features: Some(f.reversed()), ..r.clone() };
-        (!r.features_tell() && reversed.features_tell()).then_some(k)
+        (!f.tell() && f.reversed().tell()).then_some(k)
     }
 
     /// Where candidates `best` and `rival` differ on the part (outline `part`), at the tight

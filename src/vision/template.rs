@@ -255,15 +255,8 @@ impl Library {
                 near.into_iter()
                     .filter(|&(j, al)| j != i && al.rms <= ALIKE_CORR)
                     .map(|(j, al)| {
-                        let o = &entries[j].template;
                         // The other's outline placed on this one's, as a part's would be.
-                        let rel = Similarity {
-                            from: o.centroid,
-                            to: e.template.centroid,
-                            angle_rad: al.shift / correlator.bins() as f64 * std::f64::consts::TAU,
-                            scale: al.scale,
-                        };
-                        (j, rel)
+                        (j, placed(&correlator, &al, entries[j].template.centroid, e.template.centroid))
                     })
                     .collect()
             })
@@ -293,26 +286,31 @@ impl Library {
 
 /// [`Library::nearest`] over `entries`.
 fn nearest_of(entries: &[Compiled], correlator: &Correlator, part: &Spectrum, need: usize) -> Vec<(usize, Alignment)> {
-    {
-        let n = correlator.bins();
-        let key = Key::of(part);
-        let mut order: Vec<(usize, f64)> = entries.iter().enumerate().map(|(i, e)| (i, key.bound(&e.key, n))).collect();
-        order.sort_by(|a, b| a.1.total_cmp(&b.1));
-        let mut aligned: Vec<(usize, Alignment)> = Vec::with_capacity(need + 4);
-        for (i, bound) in order {
-            if aligned.len() >= need {
-                aligned.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms));
-                let kth = aligned[need - 1].1.rms;
-                if bound > kth * (1.0 + SHORTLIST_SLACK) + 0.001 {
-                    break;
-                }
+    let n = correlator.bins();
+    let key = Key::of(part);
+    let mut order: Vec<(usize, f64)> = entries.iter().enumerate().map(|(i, e)| (i, key.bound(&e.key, n))).collect();
+    order.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let mut aligned: Vec<(usize, Alignment)> = Vec::with_capacity(need + 4);
+    for (i, bound) in order {
+        if aligned.len() >= need {
+            aligned.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms));
+            let kth = aligned[need - 1].1.rms;
+            if bound > kth * (1.0 + SHORTLIST_SLACK) + 0.001 {
+                break;
             }
-            aligned.push((i, correlator.align(part, &entries[i].spectrum)));
         }
-        aligned.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms).then(a.0.cmp(&b.0)));
-        aligned.truncate(need.max(1));
-        aligned
+        aligned.push((i, correlator.align(part, &entries[i].spectrum)));
     }
+    aligned.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms).then(a.0.cmp(&b.0)));
+    aligned.truncate(need.max(1));
+    aligned
+}
+
+/// The pose that places a template's outline (centroid `from`) on a signal it was aligned with
+/// by `al` (centroid `to`): the start of a registration, whether the signal is a part's or
+/// another template's.
+pub fn placed(correlator: &Correlator, al: &Alignment, from: Pt, to: Pt) -> Similarity {
+    Similarity { from, to, angle_rad: al.shift / correlator.bins() as f64 * std::f64::consts::TAU, scale: al.scale }
 }
 
 /// How far (relative) the sub-bin refinement of a correlation may land below its whole-bin

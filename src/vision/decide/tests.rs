@@ -307,22 +307,18 @@ fn local(best_follows: f64, rival_follows: f64) -> Local {
     Local { best_len: 120.0, best_follows, rival_len: 60.0, rival_follows, hidden_len: 0.0, apart: 6.0, at_deg: 212.0 }
 }
 
+/// bracket down, tying with the best (fit 0.95 both) where the two differ as `local` says.
+fn tied_rival(confidence: f64, local: Option<Local>) -> Rival {
+    Rival { name: named("bracket", Face::Down), fit: 0.95, best: 0.95, tolerance: 1.6, support: None, confidence, local, features: None }
+}
+
 /// Where two templates differ decides between them when the part follows one; the line features
 /// decide only when it does not tell; neither followed is a type not enrolled.
 #[test]
 fn where_templates_differ_decides_a_tie() {
     let tie = |local: Option<Local>, confidence: f64| {
         let mut m = separate();
-        m.rival = Some(Rival {
-            name: named("bracket", Face::Down),
-            fit: 0.95,
-            best: 0.95,
-            tolerance: 1.6,
-            support: None,
-            confidence,
-            local,
-            features: None,
-        });
+        m.rival = Some(tied_rival(confidence, local));
         decide(m, limits()).verdict
     };
     // The part follows the best where they differ: accepted even though the lines tie.
@@ -341,16 +337,7 @@ fn where_templates_differ_decides_a_tie() {
     // the departure is the failing row.
     let departing = |depth: f64| {
         let mut m = separate();
-        m.rival = Some(Rival {
-            name: named("bracket", Face::Down),
-            fit: 0.95,
-            best: 0.95,
-            tolerance: 1.6,
-            support: None,
-            confidence: 0.8,
-            local: Some(local(0.95, 0.0)),
-            features: None,
-        });
+        m.rival = Some(tied_rival(0.8, Some(local(0.95, 0.0))));
         m.departure = Some(Departure {
             len: 90.0,
             width: 40.0,
@@ -413,16 +400,7 @@ fn where_templates_differ_decides_a_tie() {
 fn a_tie_the_stretches_do_not_tell_with_a_deep_departure_is_a_type_not_enrolled() {
     let tied = |departure: Option<Departure>| {
         let mut m = separate();
-        m.rival = Some(Rival {
-            name: named("bracket", Face::Down),
-            fit: 0.95,
-            best: 0.95,
-            tolerance: 1.6,
-            support: None,
-            confidence: 0.8,
-            local: Some(local(0.0, 0.58)),
-            features: None,
-        });
+        m.rival = Some(tied_rival(0.8, Some(local(0.0, 0.58))));
         m.departure = departure;
         decide(m, limits())
     };
