@@ -82,7 +82,8 @@ const SIZES: [usize; 4] = [3, 10, 40, 100];
 fn catalogue_setup() -> (Vec<(usize, Estimator)>, Frames) {
     let cfg = SimConfig { width: 2592, height: 1944, seed: 7, noise: None };
     let sim = Simulator::new(cfg.clone()).expect("simulator");
-    let params = Params::default();
+    // One thread, as the figures are: the ratios compare work, not the pool's luck.
+    let params = Params { threads: 1, ..Params::default() };
     let mut templates = sim.enrolled(&params).expect("templates enrol");
     let extra = lfi_bridge::sim::catalog::generate(SIZES[SIZES.len() - 1] - 3, 7);
     let types = Simulator::with_catalogue(cfg, &extra).expect("catalogue").templates().expect("catalogue templates");
@@ -148,6 +149,10 @@ fn bench(c: &mut Criterion) {
     }
     let (estimators, frames) = catalogue_setup();
     catalogue_table(&estimators, &frames);
+    for (n, est) in [&estimators[0], &estimators[estimators.len() - 1]] {
+        println!("{n} types:");
+        stage_table(est, &frames);
+    }
     let mut g = c.benchmark_group("catalogue");
     g.sample_size(20);
     for (name, img) in &frames {
