@@ -58,3 +58,30 @@ fn the_library_finds_its_own_templates_turned_and_mirrored() {
         }
     }
 }
+
+/// The region search's glance (more than 24 templates: each votes from a quarter of the region,
+/// the best 24 vote in full) decides as every template voting in full: `clump::explain` asserts
+/// it in debug builds by searching the region again without the glance (the same parts, poses,
+/// rivals and leftovers). Touching and overlapping pairs of the 40-type catalogue (80
+/// templates), with and without debris, at noise 0, 20 and 40.
+#[test]
+fn the_region_glance_decides_as_the_full_vote_at_every_noise() {
+    let _shared = common::MACHINE.blocking_read();
+    let cat = catalog::generate(40, 3);
+    let clean = SimConfig { width: 1296, height: 972, seed: 11, noise: None };
+    let templates = Simulator::with_catalogue(clean.clone(), &cat).expect("simulator").enrolled(&Params::default()).expect("templates");
+    let est = Estimator::new(&templates, Params::default()).expect("estimator");
+    let mut searched = 0;
+    for noise in [None, Some(20.0), Some(40.0)] {
+        let sim = Simulator::with_catalogue(SimConfig { noise, ..clean.clone() }, &cat).expect("simulator");
+        for cond in ["touching", "overlapping"] {
+            for i in 1..=4 {
+                let scene = sim.scene_with(i, cond).expect("scene renders");
+                // Panics (the debug assertion) if the glance changed what the region search finds.
+                let fe = est.estimate(scene.image.view().unwrap()).expect("estimate runs");
+                searched += (fe.timings.vote > 0.0) as usize;
+            }
+        }
+    }
+    assert!(searched >= 18, "the region search voted in only {searched} of 24 frames");
+}

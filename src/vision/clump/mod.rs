@@ -23,6 +23,7 @@ mod verify;
 mod vote;
 
 pub use found::{Explained, Found, MIN_SUPPORT, Region};
+pub use vote::GLANCE_FROM;
 
 use opencv::core::{self, Mat};
 
@@ -34,13 +35,15 @@ use verify::Look;
 use vote::Vote;
 
 /// Finds and verifies the parts in a region. `tolerance(entry)` is the outline tolerance of that
-/// template at this frame's noise, as the single-part path uses it.
-pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> f64 + Sync, min_leftover: f64) -> Explained {
+/// template at this frame's noise, as the single-part path uses it. With more than
+/// [`GLANCE_FROM`] templates and `glance`, the vote glances first (see `vote`); without, every
+/// template votes in full (what tests hold the glance's decisions against).
+pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> f64 + Sync, min_leftover: f64, glance: bool) -> Explained {
     let scene = oriented_points(region.outline);
     if scene.len() < 8 {
         return Explained::default();
     }
-    let mut vote = Vote::new(lib, region.outline);
+    let mut vote = Vote::new(lib, region.outline, glance);
     let hyps = vote.hypotheses(&scene, 1.0, region.pool);
     let look = Look::new(lib, region, &tolerance);
     let (mut found, mut masks) = (Vec::new(), Vec::new());
@@ -64,8 +67,8 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         let hyps = vote.hypotheses(&rest, scale, region.pool);
         take(&look, region, hyps, &mut found, &mut masks);
     }
-    let (mut found, masks, keep) = one_per_part(lib, found, masks);
-    look_alikes(&look, region, &mut found, &keep);
+    let (mut found, mut masks, keep) = one_per_part(lib, found, masks);
+    look_alikes(&look, region, &mut found, &mut masks, &keep);
     layer::order(lib, region, &look.edge, &mut found, &masks, &keep);
     let kept: Vec<&Mat> = keep.iter().map(|&i| &masks[i]).collect();
     let leftover = leftover::pieces(region, &kept, min_leftover).unwrap_or_default();
@@ -133,11 +136,13 @@ fn one_per_part(lib: &Library, found: Vec<Found>, masks: Vec<Mat>) -> (Vec<Found
 /// A kept part is held against its look-alikes (`Library::alike`: another face of one outline,
 /// a revision sibling): each is looked at at the part's pose, and the best supported that the
 /// image explains becomes its rival when it is better supported than the rival the search found
-/// (if any), to be told apart where the two differ.
+/// (if any), to be told apart where the two differ; and when it is better supported than the
+/// part itself, it is the part, the part its rival (and its mask is the part's).
 /// The vote ranks hypotheses by their share of votes and keeps a few, so a sibling explaining
 /// the same material as well may never be looked at; a part would then be accepted without
-/// ever being compared with the type it may be.
-fn look_alikes(look: &Look<'_>, region: &Region<'_>, found: &mut [Found], keep: &[usize]) {
+/// ever being compared with the type it may be. Which of two look-alikes the vote happens to
+/// reach first must not decide which one is named: the one the image explains better is.
+fn look_alikes(look: &Look<'_>, region: &Region<'_>, found: &mut [Found], masks: &mut [Mat], keep: &[usize]) {
     let todo: Vec<usize> = keep.iter().copied().filter(|&k| !look.lib.alike[found[k].entry].is_empty()).collect();
     let rivals = each(region.pool, &todo, |&k| {
         let f = &found[k];
@@ -151,13 +156,20 @@ fn look_alikes(look: &Look<'_>, region: &Region<'_>, found: &mut [Found], keep: 
                     angle_rad: pose.angle_rad + rel.angle_rad,
                     scale: pose.scale * rel.scale,
                 };
-                look.at(j, look.aim(j, init)).map(|x| (j, x.reg, x.support))
+                look.at(j, look.aim(j, init))
             })
-            .max_by(|a, b| a.2.total_cmp(&b.2))
+            .max_by(|a, b| a.support.total_cmp(&b.support))
     });
     for (k, rival) in todo.into_iter().zip(rivals) {
-        if let Some(r) = rival.filter(|r| found[k].rival.is_none_or(|old| r.2 > old.2)) {
-            found[k].rival = Some(r);
+        let Some(mut r) = rival else { continue };
+        let part = &found[k];
+        if r.support > part.support {
+            r.rival = Some((part.entry, part.reg, part.support));
+            (r.under, r.order_unclear) = (part.under, part.order_unclear);
+            masks[k] = mask::mask_of(look.lib, &r, region.blob, region.coarse.factor).unwrap_or_default();
+            found[k] = r;
+        } else if part.rival.is_none_or(|old| r.support > old.2) {
+            found[k].rival = Some((r.entry, r.reg, r.support));
         }
     }
 }

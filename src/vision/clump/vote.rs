@@ -20,7 +20,7 @@ const MAX_HYPOTHESES: usize = 10;
 /// A catalogue of more templates than this votes twice: every template at a glance (one region
 /// point in [`GLANCE_THIN`]), then the [`GLANCE_KEEP`] that glance ranks best in full. Below
 /// it, everyone votes in full (a three-type cell's six templates: today's decisions exactly).
-const GLANCE_FROM: usize = 24;
+pub const GLANCE_FROM: usize = 24;
 /// Region points one glance vote uses: one in this many.
 const GLANCE_THIN: usize = 4;
 /// Templates a glance keeps for the full vote. The full vote keeps [`MAX_HYPOTHESES`] poses of at
@@ -35,6 +35,9 @@ const GLANCE_KEEP: usize = 24;
 /// wall time.
 pub(super) struct Vote<'a> {
     lib: &'a Library,
+    /// Glance first with a catalogue (more than [`GLANCE_FROM`] templates); false: every
+    /// template votes in full (what tests hold the glance's decisions against).
+    glance: bool,
     accs: Vec<Accumulator>,
     /// Wall time spent voting so far, milliseconds.
     pub(super) ms: f64,
@@ -42,9 +45,9 @@ pub(super) struct Vote<'a> {
 
 impl<'a> Vote<'a> {
     /// A vote over the bounding box of the region's `outline`.
-    pub(super) fn new(lib: &'a Library, outline: &[Pt]) -> Self {
+    pub(super) fn new(lib: &'a Library, outline: &[Pt], glance: bool) -> Self {
         let (lo, hi) = bounds(outline);
-        Self { lib, accs: vec![Accumulator::new(lo, hi)], ms: 0.0 }
+        Self { lib, glance, accs: vec![Accumulator::new(lo, hi)], ms: 0.0 }
     }
 
     /// Every template's best poses from `scene` (oriented outline points) at `scale`: (entry,
@@ -66,7 +69,7 @@ impl<'a> Vote<'a> {
             self.accs.push(more);
         }
         let all: Vec<usize> = (0..lib.entries.len()).collect();
-        let voters = if lib.entries.len() > GLANCE_FROM {
+        let voters = if self.glance && lib.entries.len() > GLANCE_FROM {
             // The glance: each template's best share of votes from a thinned region.
             let thin: Vec<(Pt, usize, i32)> = scene.iter().step_by(GLANCE_THIN).copied().collect();
             let mut shares: Vec<(usize, f64)> = self
@@ -89,17 +92,7 @@ impl<'a> Vote<'a> {
         } else {
             all
         };
-        let mut hyps = self.deal(&voters, pool, workers, scene, &rot, 1);
-        // In template order (each template's peaks in their own order), as one worker finds
-        // them; then stronger evidence first: votes as a fraction of the template's voting
-        // points (both sorts stable, so equal fractions keep that order).
-        hyps.sort_by_key(|h| h.0);
-        hyps.sort_by(|a, b| {
-            let fa = a.2 as f64 / lib.entries[a.0].shape.vote.len() as f64;
-            let fb = b.2 as f64 / lib.entries[b.0].shape.vote.len() as f64;
-            fb.total_cmp(&fa)
-        });
-        hyps.truncate(MAX_HYPOTHESES);
+        let hyps = strongest(lib, self.deal(&voters, pool, workers, scene, &rot, 1));
         self.ms += voting.elapsed().as_secs_f64() * 1e3;
         hyps
     }
@@ -134,6 +127,20 @@ impl<'a> Vote<'a> {
             _ => deal((0, &mut self.accs[0])),
         }
     }
+}
+
+/// The [`MAX_HYPOTHESES`] poses with the strongest evidence: in template order (each
+/// template's peaks in their own order), as one worker finds them; then votes as a fraction
+/// of the template's voting points (both sorts stable, so equal fractions keep that order).
+fn strongest(lib: &Library, mut hyps: Vec<(usize, Similarity, u32)>) -> Vec<(usize, Similarity, u32)> {
+    hyps.sort_by_key(|h| h.0);
+    hyps.sort_by(|a, b| {
+        let fa = a.2 as f64 / lib.entries[a.0].shape.vote.len() as f64;
+        let fb = b.2 as f64 / lib.entries[b.0].shape.vote.len() as f64;
+        fb.total_cmp(&fa)
+    });
+    hyps.truncate(MAX_HYPOTHESES);
+    hyps
 }
 
 /// The vote accumulator over a region: rotation bins x centroid cells, reused by every
