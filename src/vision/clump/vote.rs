@@ -38,6 +38,9 @@ pub(super) struct Vote<'a> {
     /// Glance first with a catalogue (more than [`GLANCE_FROM`] templates); false: every
     /// template votes in full (what tests hold the glance's decisions against).
     glance: bool,
+    /// The templates the first round's glance kept: the later rounds vote with them (what is
+    /// left of the region is part of what the glance saw).
+    kept: Option<Vec<usize>>,
     accs: Vec<Accumulator>,
     /// Wall time spent voting so far, milliseconds.
     pub(super) ms: f64,
@@ -47,7 +50,7 @@ impl<'a> Vote<'a> {
     /// A vote over the bounding box of the region's `outline`.
     pub(super) fn new(lib: &'a Library, outline: &[Pt], glance: bool) -> Self {
         let (lo, hi) = bounds(outline);
-        Self { lib, glance, accs: vec![Accumulator::new(lo, hi)], ms: 0.0 }
+        Self { lib, glance, kept: None, accs: vec![Accumulator::new(lo, hi)], ms: 0.0 }
     }
 
     /// Every template's best poses from `scene` (oriented outline points) at `scale`: (entry,
@@ -69,7 +72,9 @@ impl<'a> Vote<'a> {
             self.accs.push(more);
         }
         let all: Vec<usize> = (0..lib.entries.len()).collect();
-        let voters = if self.glance && lib.entries.len() > GLANCE_FROM {
+        let voters = if let Some(kept) = &self.kept {
+            kept.clone()
+        } else if self.glance && lib.entries.len() > GLANCE_FROM {
             // The glance: each template's best share of votes from a thinned region.
             let thin: Vec<(Pt, usize, i32)> = scene.iter().step_by(GLANCE_THIN).copied().collect();
             let mut shares: Vec<(usize, f64)> = self
@@ -88,6 +93,7 @@ impl<'a> Vote<'a> {
                 }
             }
             keep.sort_unstable();
+            self.kept = Some(keep.clone());
             keep
         } else {
             all
