@@ -60,10 +60,11 @@ fn the_library_finds_its_own_templates_turned_and_mirrored() {
 }
 
 /// The region search's glance (more than 24 templates: each votes from a quarter of the region,
-/// the best 24 vote in full) decides as every template voting in full: `clump::explain` asserts
-/// it in debug builds by searching the region again without the glance (the same parts, poses,
-/// rivals and leftovers). Touching and overlapping pairs of the 40-type catalogue (80
-/// templates), with and without debris, at noise 0, 20 and 40.
+/// the best 24 vote in full) decides as every template voting in full: `Estimator::check_glance`
+/// asserts it in debug builds by searching the region again without the glance (the same
+/// verdicts, types, faces and reasons, poses within 1.5 px and 0.5 degrees). Touching and
+/// overlapping pairs of the 40-type catalogue (80 templates), with and without debris, at noise
+/// 0, 20 and 40.
 #[test]
 fn the_region_glance_decides_as_the_full_vote_at_every_noise() {
     let _shared = common::MACHINE.blocking_read();

@@ -590,12 +590,10 @@ impl Estimator {
             return;
         }
         let full = clump::explain(&self.lib, region, |ei| self.tolerance(ei, region.noise), self.min_debris_area, false);
-        let full = match seen {
-            Some(seen) if !full.parts.is_empty() => self.region_parts(seen, &full).0,
-            _ => {
-                assert!(full.parts.is_empty(), "the full vote found {} parts where the glance found none", full.parts.len());
-                Vec::new()
-            }
+        let full = match (seen, full.parts.is_empty()) {
+            (_, true) => Vec::new(),
+            (Some(seen), false) => self.region_parts(seen, &full).0,
+            (None, false) => panic!("the full vote found {} parts where the glance found none", full.parts.len()),
         };
         let verdict = |e: &PartEstimate| (e.type_id, e.face, e.accepted, e.reason);
         let near = |a: &PartEstimate, b: &PartEstimate| {
