@@ -46,21 +46,30 @@ impl Placed<'_> {
 
 /// Compares templates `best` and `rival` on a part whose outline is indexed as `part` (frame
 /// pixels): points of either template's outline farther than `apart` from the other's, on runs
-/// at least `min_run` long (frame pixels; shorter ones are the placements' jitter at corners),
-/// and of those the fraction within `near` of the part's outline. Points where `excused` holds
+/// at least `min_run` long (both from `near` by [`separation`]; frame pixels; shorter runs are
+/// the placements' jitter at corners), and of those the fraction within `near` of the part's
+/// outline. Points where `excused` holds
 /// (frame pixels: against or under a neighbouring part, where the part's own outline is not
-/// seen) tell nothing: a stretch with any such point is left out, counted as hidden.
+/// seen) tell nothing from the outline: a stretch with any such point is left out, counted as
+/// hidden, unless the part's edge is seen along most of it ([`MOST_SHOWN`]): the part's outline
+/// on it, or `light` showing a step from part (inside) to belt (outside) across it.
+///
+/// Why the light: a notch that opens against a touching neighbour is a pocket of belt inside
+/// the region, so the region's outer outline never runs into it, yet the frame shows its walls
+/// plainly. Only what is shown counts: where a neighbour lies against or over the stretch the
+/// frame shows no step whichever template is right, so a stretch not shown stays hidden and
+/// [`Local::follows`] asks the other template's stretch to be seen and not followed.
 pub fn compare(
     part: &OutlineIndex,
     best: Placed<'_>,
     rival: Placed<'_>,
     excused: &dyn Fn(Pt) -> bool,
+    light: Option<&Light<'_>>,
     near: f64,
-    apart: f64,
-    min_run: f64,
 ) -> Local {
-    let b = stretches(part, best, rival, excused, near, apart, min_run);
-    let r = stretches(part, rival, best, excused, near, apart, min_run);
+    let (apart, min_run) = separation(near);
+    let b = stretches(part, best, rival, excused, light, near, apart, min_run);
+    let r = stretches(part, rival, best, excused, light, near, apart, min_run);
     let ((_, mid), on) = if b.longest.0 >= r.longest.0 { (b.longest, best) } else { (r.longest, rival) };
     let at = mid.map(|q| on.angle_at(q));
     Local {
@@ -87,11 +96,18 @@ struct Stretches {
     longest: (f64, Option<Pt>),
 }
 
+/// A stretch partly hidden by a neighbour counts when the frame shows the part's edge along at
+/// least this share of it ([`compare`]): the share a part's outline must follow for
+/// [`Local::follows`] to name its template.
+const MOST_SHOWN: f64 = 0.7;
+
+#[allow(clippy::too_many_arguments)]
 fn stretches(
     part: &OutlineIndex,
     this: Placed<'_>,
     other: Placed<'_>,
     excused: &dyn Fn(Pt) -> bool,
+    light: Option<&Light<'_>>,
     near: f64,
     apart: f64,
     min_run: f64,
@@ -101,13 +117,25 @@ fn stretches(
     let reach = apart / other.pose.scale;
     let off: Vec<bool> = frame.iter().map(|&q| !other.index.any_within(to_other.apply(q), reach)).collect();
     let mut out = Stretches { len: 0.0, followed: 0.0, hidden: 0.0, longest: (0.0, None) };
+    let on_outline = |i: usize| part.any_within(frame[i], near);
     for run in runs(&frame, &off, min_run) {
-        if run.points.iter().any(|&i| excused(frame[i])) {
-            out.hidden += run.len;
-            continue;
-        }
+        let seen = if run.points.iter().any(|&i| excused(frame[i])) {
+            // Where parts touch, the region's outline runs around both, not into a pocket of
+            // belt between them: the frame's step across the template's outline there is as
+            // good a sign of the part's edge as the outline. Only there: elsewhere the outline
+            // is the part's own, and a step inside a part (a shaded rim, a boss) is no edge.
+            let shown = |i: usize| on_outline(i) || light.is_some_and(|l| l.shows(frame[i], outward(this, i), 0.5 * apart));
+            let seen = run.points.iter().filter(|&&i| shown(i)).map(|&i| run.step(&frame, i)).sum::<f64>();
+            if light.is_none() || seen < MOST_SHOWN * run.len {
+                out.hidden += run.len;
+                continue;
+            }
+            seen
+        } else {
+            run.points.iter().filter(|&&i| on_outline(i)).map(|&i| run.step(&frame, i)).sum::<f64>()
+        };
         out.len += run.len;
-        out.followed += run.points.iter().filter(|&&i| part.any_within(frame[i], near)).map(|&i| run.step(&frame, i)).sum::<f64>();
+        out.followed += seen;
         if run.len > out.longest.0 {
             out.longest = (run.len, Some(frame[run.points[run.points.len() / 2]]));
         }
@@ -532,9 +560,8 @@ mod tests {
         let (with, without) = (OutlineIndex::new(&plate(25.0)), OutlineIndex::new(&plate(0.0)));
         let at = pose(600.0, 400.0, 37.0);
         let frame = |t: &[Pt]| OutlineIndex::of_frame(&t.iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
-        let cmp = |part: &OutlineIndex, a: &OutlineIndex, b: &OutlineIndex| {
-            compare(part, placed(a, at), placed(b, at), &|_| false, 2.0, 6.0, 12.0)
-        };
+        let cmp =
+            |part: &OutlineIndex, a: &OutlineIndex, b: &OutlineIndex| compare(part, placed(a, at), placed(b, at), &|_| false, None, 2.0);
 
         let l = cmp(&frame(&plate(25.0)), &with, &without);
         assert_eq!(l.follows(), Follows::Best, "{l:?}");
@@ -547,18 +574,60 @@ mod tests {
         // A neighbour against the lug hides a stretch: nothing tells.
         let lug_top = at.apply(Pt::new(100.0, -25.0));
         let hidden =
-            compare(&frame(&plate(25.0)), placed(&with, at), placed(&without, at), &|q: Pt| (q - lug_top).norm() < 10.0, 2.0, 6.0, 12.0);
+            compare(&frame(&plate(25.0)), placed(&with, at), placed(&without, at), &|q: Pt| (q - lug_top).norm() < 10.0, None, 2.0);
         assert!(hidden.hidden_len > 0.0 && hidden.follows() == Follows::Unclear, "{hidden:?}");
         // A neighbour against the other's straight edge hides that stretch, but the lug is seen
         // and followed: that tells. Not lying where the hidden edge would be tells nothing.
         let edge = at.apply(Pt::new(100.0, 0.0));
         let by_edge = |q: Pt| (q - edge).norm() < 10.0;
-        let l = compare(&frame(&plate(25.0)), placed(&with, at), placed(&without, at), &by_edge, 2.0, 6.0, 12.0);
+        let l = compare(&frame(&plate(25.0)), placed(&with, at), placed(&without, at), &by_edge, None, 2.0);
         assert!(l.hidden_len > 0.0 && l.follows() == Follows::Best, "{l:?}");
-        let l = compare(&frame(&plate(0.0)), placed(&with, at), placed(&without, at), &by_edge, 2.0, 6.0, 12.0);
+        let l = compare(&frame(&plate(0.0)), placed(&with, at), placed(&without, at), &by_edge, None, 2.0);
         assert!(l.hidden_len > 0.0 && l.follows() == Follows::Unclear, "{l:?}");
         let l = cmp(&frame(&plate(25.0)), &with, &with);
         assert_eq!((l.best_len, l.rival_len, l.follows()), (0.0, 0.0, Follows::Unclear), "{l:?}");
+    }
+
+    /// A notch that opens against a touching neighbour: the region's outline runs around both
+    /// parts, not into the pocket of belt the notch leaves between them, so the outline alone
+    /// tells nothing there; the frame shows the notch's walls. Where the frame shows no notch
+    /// (the plain part against its neighbour) nothing tells, whichever template is placed first.
+    #[test]
+    fn a_notch_against_a_neighbour_is_seen_by_the_light() {
+        use crate::vision::frame::GrayImage;
+        let at = pose(200.0, 150.0, 0.0);
+        let (w, h) = (400, 300);
+        // The plate spans frame x 100..300, y 100..200; its neighbour lies against its top
+        // edge, y 60..100; a notch (template lug -10) is belt at x 180..220, y 100..110, all
+        // of it within the reach of the neighbour's outline (12 px) where the outline is not
+        // the part's own.
+        let image = |notch: bool| {
+            let mut img = GrayImage::new(w, h, 50);
+            for y in 60..200 {
+                for x in 100..300 {
+                    if !(notch && (180..220).contains(&x) && (100..110).contains(&y)) {
+                        img.data[y * w + x] = 180;
+                    }
+                }
+            }
+            img
+        };
+        let corners = [Pt::new(100.0, 60.0), Pt::new(300.0, 60.0), Pt::new(300.0, 200.0), Pt::new(100.0, 200.0)];
+        let region = OutlineIndex::of_frame(&crate::vision::geometry::resample_closed(&corners, 2.0));
+        let against = |q: Pt| q.y < 112.0;
+        let (notched, plain) = (OutlineIndex::new(&plate(-10.0)), OutlineIndex::new(&plate(0.0)));
+        for (notch, first_notched, expect) in
+            [(true, true, Follows::Best), (true, false, Follows::Rival), (false, true, Follows::Unclear), (false, false, Follows::Unclear)]
+        {
+            let img = image(notch);
+            let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
+            let (a, b) = if first_notched { (&notched, &plain) } else { (&plain, &notched) };
+            let l = compare(&region, placed(a, at), placed(b, at), &against, Some(&light), 2.0);
+            assert_eq!(l.follows(), expect, "notch in the image {notch}, notched template first {first_notched}: {l:?}");
+            // Without the frame's word, the stretch against the neighbour is hidden.
+            let l = compare(&region, placed(a, at), placed(b, at), &against, None, 2.0);
+            assert!(l.hidden_len > 0.0 && l.follows() == Follows::Unclear, "{l:?}");
+        }
     }
 
     /// A part like its template except a lug (or a notch) departs from it there, by the lug's

@@ -722,8 +722,8 @@ impl Estimator {
             let e = &self.lib.entries[x.entry];
             differ::Placed { index: &e.index, pose: x.reg.pose, centroid: e.template.centroid }
         };
-        let (apart, min_run) = differ::separation(tight);
         let tpl = &self.lib.entries[other.entry].template;
+        let light = differ::Light::new(seen.frame, seen.brighter, seen.contrast, seen.noise);
         Rival {
             name: named(tpl),
             fit: coverage(other.entry, other.reg.pose),
@@ -731,7 +731,7 @@ impl Estimator {
             tolerance: tight,
             support: Some((other.support, best.support)),
             confidence: if segments.is_empty() { 0.0 } else { confidence(&tpl.segments, segments, &other.reg.pose, diag, lambda) },
-            local: Some(differ::compare(seen.outline_index, placed(best), placed(other), seen.excused, tight, apart, min_run)),
+            local: Some(differ::compare(seen.outline_index, placed(best), placed(other), seen.excused, Some(&light), tight)),
             features: None,
         }
     }
@@ -1033,8 +1033,7 @@ impl Estimator {
             let e = &self.lib.entries[c.entry];
             differ::Placed { index: &e.index, pose: c.reg.pose, centroid: e.template.centroid }
         };
-        let (apart, min_run) = differ::separation(near);
-        differ::compare(part, placed(best), placed(rival), &|_| false, near, apart, min_run)
+        differ::compare(part, placed(best), placed(rival), &|_| false, None, near)
     }
 
     /// The closest rival of the best candidate, with where they differ and its line features'
