@@ -630,14 +630,28 @@ impl Estimator {
         let reach = 3.0 * self.clean_tolerance(seen.noise);
         let excused = |q: Pt| others.iter().any(|(index, outline)| index.any_within(q, reach) || geometry::contains(outline, q));
         let seen = &Seen { excused: &excused, ..*seen };
+        // Every other explanation is held against the first, as the separate-part path holds
+        // every candidate: one the part follows where they differ is the part; else the rival
+        // reported is the first tied one the part does not clearly leave behind, else the first
+        // tied, else the best supported.
         let first = Explanation { entry: f.entry, reg: f.reg, support: f.support, tolerance: f.tolerance };
-        let second = f.rival.map(|(entry, reg, support)| Explanation { entry, reg, support, tolerance: self.tolerance(entry, seen.noise) });
-        let (best, other) = match second {
-            Some(s) => {
+        let judged: Vec<(Explanation, Rival)> = f
+            .rivals
+            .iter()
+            .map(|&(entry, reg, support)| {
+                let s = Explanation { entry, reg, support, tolerance: self.tolerance(entry, seen.noise) };
                 let r = self.region_rival(seen, &first, &s, &[], 1.0, lambda);
-                if r.ties(&limits) && r.local.map(|l| l.follows()) == Some(Follows::Rival) { (s, Some(first)) } else { (first, Some(s)) }
+                (s, r)
+            })
+            .collect();
+        let follows = |r: &Rival| r.local.map(|l| l.follows());
+        let tied: Vec<&(Explanation, Rival)> = judged.iter().filter(|(_, r)| r.ties(&limits)).collect();
+        let (best, other) = match tied.iter().find(|(_, r)| follows(r) == Some(Follows::Rival)) {
+            Some((s, _)) => (*s, Some(first)),
+            None => {
+                let reported = tied.iter().find(|(_, r)| follows(r) != Some(Follows::Best)).or(tied.first()).map(|(s, _)| *s);
+                (first, reported.or(judged.first().map(|(s, _)| *s)))
             }
-            None => (first, None),
         };
         let e = &self.lib.entries[best.entry];
         let tpl = &e.template;

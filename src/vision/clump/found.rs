@@ -36,9 +36,12 @@ pub struct Found {
     pub under: Option<usize>,
     /// Overlaps another part found here, and the image cannot tell which lies on top.
     pub order_unclear: bool,
-    /// Another template explaining the same material nearly as well: (entry, its registration,
-    /// support).
-    pub rival: Option<(usize, Registration, f64)>,
+    /// The other types and faces explaining the same material: (entry, its registration,
+    /// support), best supported first, one per template. All of them, not the runner-up alone:
+    /// a type whose outline is part of this one's (two lugs of a three-lug flange) may be
+    /// supported a little better by a region that hides the third, while the type that has the
+    /// third comes after a face of the first.
+    pub rivals: Vec<(usize, Registration, f64)>,
     /// Verification points.
     pub(super) points: Vec<Probe>,
 }

@@ -107,8 +107,8 @@ fn take(look: &Look<'_>, region: &Region<'_>, hyps: Vec<(usize, Similarity, u32)
 }
 
 /// One physical part, several explanations (the same template from two peaks, another face or
-/// type): the best stays, the runner-up of a different type or face is its rival. Returns every
-/// explanation and its mask, best supported first, and the indices of those kept.
+/// type): the best stays, each other type or face is one of its rivals (best supported first).
+/// Returns every explanation and its mask, best supported first, and the indices of those kept.
 fn one_per_part(lib: &Library, found: Vec<Found>, masks: Vec<Mat>) -> (Vec<Found>, Vec<Mat>, Vec<usize>) {
     let mut by_support: Vec<(Found, Mat)> = found.into_iter().zip(masks).collect();
     by_support.sort_by(|a, b| b.0.support.total_cmp(&a.0.support));
@@ -124,8 +124,9 @@ fn one_per_part(lib: &Library, found: Vec<Found>, masks: Vec<Mat>) -> (Vec<Found
             None => keep.push(i),
             Some(k) => {
                 let (a, b) = (&lib.entries[found[k].entry].template, &lib.entries[found[i].entry].template);
-                if found[k].rival.is_none() && (a.type_name != b.type_name || a.face != b.face) {
-                    found[k].rival = Some((found[i].entry, found[i].reg, found[i].support));
+                let (entry, reg, support) = (found[i].entry, found[i].reg, found[i].support);
+                if (a.type_name != b.type_name || a.face != b.face) && found[k].rivals.iter().all(|r| r.0 != entry) {
+                    found[k].rivals.push((entry, reg, support));
                 }
             }
         }
@@ -135,9 +136,9 @@ fn one_per_part(lib: &Library, found: Vec<Found>, masks: Vec<Mat>) -> (Vec<Found
 
 /// A kept part is held against its look-alikes (`Library::alike`: another face of one outline,
 /// a revision sibling): each is looked at at the part's pose, and the best supported that the
-/// image explains becomes its rival when it is better supported than the rival the search found
-/// (if any), to be told apart where the two differ; and when it is better supported than the
-/// part itself, it is the part, the part its rival (and its mask is the part's).
+/// image explains joins its rivals, to be told apart where the two differ; and when it is
+/// better supported than the part itself, it is the part, the part its first rival (and its
+/// mask is the part's).
 /// The vote ranks hypotheses by their share of votes and keeps a few, so a sibling explaining
 /// the same material as well may never be looked at; a part would then be accepted without
 /// ever being compared with the type it may be. Which of two look-alikes the vote happens to
@@ -162,14 +163,17 @@ fn look_alikes(look: &Look<'_>, region: &Region<'_>, found: &mut [Found], masks:
     });
     for (k, rival) in todo.into_iter().zip(rivals) {
         let Some(mut r) = rival else { continue };
-        let part = &found[k];
+        let part = &mut found[k];
+        // The look-alike's own look replaces whatever the search found of it.
+        part.rivals.retain(|o| o.0 != r.entry);
         if r.support > part.support {
-            r.rival = Some((part.entry, part.reg, part.support));
+            r.rivals = std::iter::once((part.entry, part.reg, part.support)).chain(part.rivals.drain(..)).collect();
             (r.under, r.order_unclear) = (part.under, part.order_unclear);
             masks[k] = mask::mask_of(look.lib, &r, region.blob, region.coarse.factor).unwrap_or_default();
-            found[k] = r;
-        } else if part.rival.is_none_or(|old| r.support > old.2) {
-            found[k].rival = Some((r.entry, r.reg, r.support));
+            *part = r;
+        } else {
+            let at = part.rivals.iter().position(|o| o.2 < r.support).unwrap_or(part.rivals.len());
+            part.rivals.insert(at, (r.entry, r.reg, r.support));
         }
     }
 }

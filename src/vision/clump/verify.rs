@@ -87,7 +87,7 @@ impl<'a> Look<'a> {
             support,
             under: None,
             order_unclear: false,
-            rival: None,
+            rivals: Vec::new(),
             points,
         })
     }
