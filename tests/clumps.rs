@@ -298,7 +298,8 @@ fn a_part_a_few_percent_off_the_templates_scale_is_found_in_a_region() {
 /// lying with one lug on a link (T032); a two-lug flange (T014) of about its size, its outline
 /// part of the first's, is supported a little better by a region that hides the third lug, with
 /// one of its own faces as the runner-up. Taken with that runner-up alone, the two-lug flange
-/// was accepted for the three-lug one.
+/// was accepted for the three-lug one, and the link under the third lug, which the two-lug
+/// flange does not reach, as lying free.
 #[test]
 fn a_type_whose_outline_is_part_of_the_parts_is_not_accepted_for_it() {
     use lfi_bridge::sim::{SimConfig, catalog};
@@ -313,4 +314,9 @@ fn a_type_whose_outline_is_part_of_the_parts_is_not_accepted_for_it() {
     let flange = at(&fe.parts, scene.truth.parts[1].x_px, scene.truth.parts[1].y_px).expect("a result at the flange");
     assert_ne!(flange.type_name.as_deref(), Some("T014"), "{}", flange.detail());
     assert!(!flange.accepted || right(flange, &scene.truth.parts[1]), "{:?} {:?}: {}", flange.type_name, flange.face, flange.detail());
+    // The link under the third lug: the search kept the two-lug flange, which does not reach
+    // it, but the three-lug one it found as well lies on it.
+    assert!(scene.truth.parts[0].visible_fraction < 0.98);
+    let link = at(&fe.parts, scene.truth.parts[0].x_px, scene.truth.parts[0].y_px).expect("a result at the link");
+    assert!(!link.accepted, "a covered link accepted: {}", link.detail());
 }

@@ -12,8 +12,17 @@ use super::mask::{at_mask, erode};
 
 /// For every pair of the `keep` parts that overlap (by their `masks`), which lies on top: the
 /// lower one's `under` names the upper, or both are `order_unclear`. An upper part's outline
-/// across a lower one then counts as seen in its support.
-pub(super) fn order(lib: &Library, region: &Region<'_>, edge: &EdgeTest<'_>, found: &mut [Found], masks: &[Mat], keep: &[usize]) {
+/// across a lower one then counts as seen in its support. A part that one of another part's
+/// `rivals` (part kept, rival: indices into `found`) lies on is `order_unclear` as well.
+pub(super) fn order(
+    lib: &Library,
+    region: &Region<'_>,
+    edge: &EdgeTest<'_>,
+    found: &mut [Found],
+    masks: &[Mat],
+    keep: &[usize],
+    rivals: &[(usize, usize)],
+) {
     let f = region.coarse.factor;
     // Which of two overlapping parts is on top: the one whose outline shows inside the other
     // (away from the other's own outline: inside its mask eroded by a decimated pixel; they
@@ -83,6 +92,31 @@ pub(super) fn order(lib: &Library, region: &Region<'_>, edge: &EdgeTest<'_>, fou
                 over[k].extend(kk);
             } else {
                 found[i].order_unclear = true;
+                found[k].order_unclear = true;
+            }
+        }
+    }
+    // Another type or face found on one part's material that the image shows lying on a second
+    // part: which of the two explanations is the part is decided later (where their templates
+    // differ), and the one kept may not reach the second part at all (two lugs of a three-lug
+    // flange whose third lies on a link). Something may lie on the second part: which lies on
+    // top is unclear for it.
+    for &(owner, r) in rivals {
+        for &k in keep {
+            if k == owner || found[k].under.is_some() || found[k].order_unclear || inside(&found[r].points, &deep[k]).len() < 4 {
+                continue;
+            }
+            let (rr, kk) = (inside(&found[r].points, &eroded[k]), inside(&found[k].points, &eroded[r]));
+            for &j in &rr {
+                found[r].points[j].across(edge);
+            }
+            for &j in &kk {
+                found[k].points[j].across(edge);
+            }
+            let (sr, sk) = (strength(&found[r].points, &rr), strength(&found[k].points, &kk));
+            let enough = rr.len().min(kk.len()) >= 20;
+            let (fr, fk) = (features(&found[r], &deep[k]), features(&found[k], &deep[r]));
+            if lies_on_top(sr, sk, fr, fk, enough, edge.margin) {
                 found[k].order_unclear = true;
             }
         }

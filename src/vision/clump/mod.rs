@@ -67,9 +67,9 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         let hyps = vote.hypotheses(&rest, scale, region.pool);
         take(&look, region, hyps, &mut found, &mut masks);
     }
-    let (mut found, mut masks, keep) = one_per_part(lib, found, masks);
+    let (mut found, mut masks, keep, rivals) = one_per_part(lib, found, masks);
     look_alikes(&look, region, &mut found, &mut masks, &keep);
-    layer::order(lib, region, &look.edge, &mut found, &masks, &keep);
+    layer::order(lib, region, &look.edge, &mut found, &masks, &keep, &rivals);
     let kept: Vec<&Mat> = keep.iter().map(|&i| &masks[i]).collect();
     let leftover = leftover::pieces(region, &kept, min_leftover).unwrap_or_default();
     Explained { parts: renumbered(&found, &keep), leftover, vote_ms: vote.ms }
@@ -108,13 +108,15 @@ fn take(look: &Look<'_>, region: &Region<'_>, hyps: Vec<(usize, Similarity, u32)
 
 /// One physical part, several explanations (the same template from two peaks, another face or
 /// type): the best stays, each other type or face is one of its rivals (best supported first).
-/// Returns every explanation and its mask, best supported first, and the indices of those kept.
-fn one_per_part(lib: &Library, found: Vec<Found>, masks: Vec<Mat>) -> (Vec<Found>, Vec<Mat>, Vec<usize>) {
+/// Returns every explanation and its mask, best supported first, the indices of those kept, and
+/// the rivals as (index of the part kept, index of the rival).
+#[allow(clippy::type_complexity)]
+fn one_per_part(lib: &Library, found: Vec<Found>, masks: Vec<Mat>) -> (Vec<Found>, Vec<Mat>, Vec<usize>, Vec<(usize, usize)>) {
     let mut by_support: Vec<(Found, Mat)> = found.into_iter().zip(masks).collect();
     by_support.sort_by(|a, b| b.0.support.total_cmp(&a.0.support));
     let (mut found, masks): (Vec<Found>, Vec<Mat>) = by_support.into_iter().unzip();
     let areas: Vec<f64> = masks.iter().map(|m| core::count_non_zero(m).unwrap_or(0) as f64).collect();
-    let mut keep: Vec<usize> = Vec::new();
+    let (mut keep, mut rivals): (Vec<usize>, Vec<(usize, usize)>) = (Vec::new(), Vec::new());
     for i in 0..found.len() {
         let same = keep.iter().copied().find(|&k| {
             let inter = mask::overlap(&masks[i], &masks[k]);
@@ -127,11 +129,12 @@ fn one_per_part(lib: &Library, found: Vec<Found>, masks: Vec<Mat>) -> (Vec<Found
                 let (entry, reg, support) = (found[i].entry, found[i].reg, found[i].support);
                 if (a.type_name != b.type_name || a.face != b.face) && found[k].rivals.iter().all(|r| r.0 != entry) {
                     found[k].rivals.push((entry, reg, support));
+                    rivals.push((k, i));
                 }
             }
         }
     }
-    (found, masks, keep)
+    (found, masks, keep, rivals)
 }
 
 /// A kept part is held against its look-alikes (`Library::alike`: another face of one outline,
