@@ -582,7 +582,8 @@ impl Estimator {
     /// In tests, a catalogue's region search (whose vote glances first) is held against every
     /// template voting in full: the same verdicts, types and faces, and poses within a pixel and
     /// a half and half a degree (a quarter of `eval`'s 2 degrees: an ICP from another start, a
-    /// look-alike's pose rather than the vote's, ends up to about a pixel away). `seen` is what
+    /// look-alike's pose rather than the vote's, ends up to about a pixel away), in any order.
+    /// `seen` is what
     /// the region offered its parts (None: the glance found none, so the full vote must not).
     #[cfg(debug_assertions)]
     fn check_glance(&self, region: &clump::Region<'_>, seen: Option<&Seen<'_>>, glanced: &[PartEstimate]) {
@@ -601,8 +602,17 @@ impl Estimator {
             verdict(a) == verdict(b) && (a.x - b.x).hypot(a.y - b.y) < 1.5 && turn.min(360.0 - turn) < 0.5
         };
         let all: Vec<_> = glanced.iter().map(verdict).collect();
+        // In any order: the order parts are found in (and listed) follows the hypotheses'.
+        let mut unmatched: Vec<&PartEstimate> = full.iter().collect();
+        let matched = glanced.iter().all(|a| match unmatched.iter().position(|b| near(a, b)) {
+            Some(k) => {
+                unmatched.swap_remove(k);
+                true
+            }
+            None => false,
+        });
         assert!(
-            glanced.len() == full.len() && glanced.iter().zip(&full).all(|(a, b)| near(a, b)),
+            glanced.len() == full.len() && matched,
             "the glance decided {all:?} where the full vote decides {:?}",
             full.iter().map(verdict).collect::<Vec<_>>()
         );
