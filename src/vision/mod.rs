@@ -645,10 +645,14 @@ impl Estimator {
         // reported is the first tied one the part does not clearly leave behind, else the first
         // tied, else the best supported.
         let first = Explanation { entry: f.entry, reg: f.reg, support: f.support, tolerance: f.tolerance };
+        // A rival supported less than the best by more than the ambiguity margin never ties
+        // ([`Rival::ties`]): it is measured only as the best supported, reported when none ties.
         let judged: Vec<(Explanation, Rival)> = f
             .rivals
             .iter()
-            .map(|&(entry, reg, support)| {
+            .enumerate()
+            .filter(|&(k, r)| k == 0 || r.2 >= first.support - limits.ambiguity_margin)
+            .map(|(_, &(entry, reg, support))| {
                 let s = Explanation { entry, reg, support, tolerance: self.tolerance(entry, seen.noise) };
                 let r = self.region_rival(seen, &first, &s, &[], 1.0, lambda);
                 (s, r)

@@ -137,9 +137,9 @@ fn one_per_part(lib: &Library, found: Vec<Found>, masks: Vec<Mat>) -> (Vec<Found
     (found, masks, keep, rivals)
 }
 
-/// A kept part is held against its look-alikes (`Library::resembles`: another face of one
-/// outline, a revision sibling, a shape of another type the glance cannot tell from it): each
-/// is looked at at the part's pose, and the best supported that the
+/// A kept part is held against its look-alikes (`Library::alike`: another face of one outline,
+/// a revision sibling; with a catalogue the glance runs on, `Library::resembles`: a shape of
+/// another type as well): each is looked at at the part's pose, and the best supported that the
 /// image explains joins its rivals, to be told apart where the two differ; and when it is
 /// better supported than the part itself, it is the part, the part its first rival (and its
 /// mask is the part's).
@@ -148,11 +148,16 @@ fn one_per_part(lib: &Library, found: Vec<Found>, masks: Vec<Mat>) -> (Vec<Found
 /// ever being compared with the type it may be. Which of two look-alikes the vote happens to
 /// reach first must not decide which one is named: the one the image explains better is.
 fn look_alikes(look: &Look<'_>, region: &Region<'_>, found: &mut [Found], masks: &mut [Mat], keep: &[usize]) {
-    let todo: Vec<usize> = keep.iter().copied().filter(|&k| !look.lib.resembles[found[k].entry].is_empty()).collect();
+    // The shapes the glance cannot tell apart are looked at where it runs (more than
+    // GLANCE_FROM templates; tests' full vote of the same catalogue too); below, every template
+    // votes in full and its siblings are enough.
+    let lib = look.lib;
+    let near = if lib.entries.len() > GLANCE_FROM { &lib.resembles } else { &lib.alike };
+    let todo: Vec<usize> = keep.iter().copied().filter(|&k| !near[found[k].entry].is_empty()).collect();
     let rivals = each(region.pool, &todo, |&k| {
         let f = &found[k];
         let pose = f.reg.pose;
-        look.lib.resembles[f.entry]
+        near[f.entry]
             .iter()
             .filter_map(|&(j, rel)| {
                 let init = Similarity {
