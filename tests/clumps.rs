@@ -342,3 +342,22 @@ fn a_part_the_glance_left_out_is_found_by_a_shape_like_it() {
     let p = at(&fe.parts, link.x_px, link.y_px).expect("a result at the link");
     assert!(p.accepted && right(p, link), "{:?} {:?} {:.2}: {}", p.type_name, p.face, p.angle_deg, p.detail());
 }
+
+/// One part alone on the belt is one story: an unknown fork (U02 of the catalogue of seed 97)
+/// whose longer arm a known fork (T029) lacks, which the region search explained as that fork,
+/// not seen whole, beside material it could not explain (both *touching/overlapping*), is one
+/// part of a type not enrolled.
+#[test]
+fn an_unknown_part_alone_is_one_unknown_part() {
+    use lfi_bridge::sim::{SimConfig, catalog};
+    let _shared = common::MACHINE.blocking_read();
+    let cat = catalog::generate(40, 97);
+    let sim = Simulator::with_catalogue(SimConfig { seed: 97, ..SimConfig::default() }, &cat).unwrap();
+    let est = Estimator::new(&sim.enrolled(&Params::default()).unwrap(), Params::default()).unwrap();
+    let scene = sim.scene(8).unwrap();
+    let names: Vec<&str> = scene.truth.parts.iter().map(|t| t.type_name.as_str()).collect();
+    assert_eq!(names, ["U02"], "the scene of the catalogue's eval set");
+    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+    let stories: Vec<String> = fe.parts.iter().map(|p| p.detail()).collect();
+    assert!(fe.parts.len() == 1 && fe.parts[0].reason == Reason::UnknownType, "{stories:#?}");
+}

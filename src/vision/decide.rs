@@ -747,6 +747,18 @@ pub fn decide(m: Measured, l: Limits) -> Decision {
     Decision { verdict, measured: m, limits: l }
 }
 
+/// Whether the region search's decisions on a region replace the single-part look's (`whole`):
+/// not when the search explained none of it, as one part would be: the one part it found not
+/// seen whole (part of its outline unexplained) and the rest material no template explains,
+/// where the single-part look found a part of a type not enrolled. One part alone on the belt
+/// is one story, not a part found in a pile with something unknown beside it (an unknown fork
+/// whose longer arm a known fork lacks is not the known fork touching a stranger).
+pub fn search_explains(whole: &Verdict, found: &[&Verdict]) -> bool {
+    let named: Vec<&&Verdict> = found.iter().filter(|v| !matches!(v, Verdict::Unexplained { .. })).collect();
+    let one_unseen = named.len() == 1 && matches!(named[0], Verdict::Unseen { .. }) && found.len() > 1;
+    !(one_unseen && whole.reason() == Reason::UnknownType)
+}
+
 /// The decision when what is measured so far already fails a test, so that the estimator need
 /// not measure the rest; None while every test so far passes.
 pub fn failed(m: &Measured, l: &Limits) -> Option<Decision> {

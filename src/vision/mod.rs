@@ -499,7 +499,10 @@ impl Estimator {
             let found = self.estimate_region(frame, coarse, blob, &est, looked, &mut tm)?;
             tm.clump += ms(t);
             if let Some((parts, debris)) = found {
-                return Ok(Regional { parts, debris, timings: tm });
+                let verdicts: Vec<&decide::Verdict> = parts.iter().map(|p| &p.decision.verdict).collect();
+                if decide::search_explains(&est.decision.verdict, &verdicts) {
+                    return Ok(Regional { parts, debris, timings: tm });
+                }
             }
         }
         Ok(Regional { parts: vec![est], debris: 0, timings: tm })

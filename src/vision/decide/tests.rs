@@ -640,3 +640,22 @@ fn own_features_inside_tell_faces_of_one_outline() {
     m.rival = Some(with);
     assert_eq!(decide(m, limits()).verdict, Verdict::Accept);
 }
+
+/// One part alone, one story: a region the single-part look found a part of a type not enrolled
+/// keeps that verdict when the search found one part not seen whole and nothing else but
+/// unexplained material; any other outcome of the search replaces it.
+#[test]
+fn a_search_that_explains_nothing_leaves_the_single_part_story() {
+    let unknown = Verdict::NoFit { need: 0.75, merged: false };
+    let merged = Verdict::NoFit { need: 0.75, merged: true };
+    let unseen = Verdict::Unseen { support: 0.9, need: 0.93 };
+    let rest = Verdict::Unexplained { area: 14000.0 };
+    assert!(!search_explains(&unknown, &[&unseen, &rest]));
+    assert!(!search_explains(&unknown, &[&rest, &unseen, &rest]));
+    // The single-part look saw several parts: the search's story stands.
+    assert!(search_explains(&merged, &[&unseen, &rest]));
+    // A part seen whole, or two parts, or one part and nothing beside it: the search explained.
+    assert!(search_explains(&unknown, &[&Verdict::Accept, &rest]));
+    assert!(search_explains(&unknown, &[&unseen, &unseen, &rest]));
+    assert!(search_explains(&unknown, &[&unseen]));
+}
