@@ -24,6 +24,20 @@ fn right(p: &PartEstimate, t: &lfi_bridge::truth::TruthPart) -> bool {
         && lfi_bridge::vision::geometry::angle_diff_deg(p.angle_deg, t.angle_deg).abs() <= 2.0
 }
 
+/// Scene `index` of the 40-type catalogue of `seed`, rendered as `simulate --catalog 40 --seed
+/// SEED` renders its eval set, with an estimator of the whole catalogue; the scene's parts must
+/// be `names` (the scene the eval found wrong).
+fn catalogue_scene(seed: u64, index: u64, names: &[&str]) -> (Estimator, lfi_bridge::sim::Scene) {
+    use lfi_bridge::sim::{SimConfig, catalog};
+    let cat = catalog::generate(40, seed);
+    let sim = Simulator::with_catalogue(SimConfig { seed, ..SimConfig::default() }, &cat).unwrap();
+    let est = Estimator::new(&sim.enrolled(&Params::default()).unwrap(), Params::default()).unwrap();
+    let scene = sim.scene(index).unwrap();
+    let found: Vec<&str> = scene.truth.parts.iter().map(|t| t.type_name.as_str()).collect();
+    assert_eq!(found, names, "the scene of the catalogue's eval set");
+    (est, scene)
+}
+
 #[test]
 fn a_touching_pair_gives_both_parts() {
     let (sim, est) = setup(404);
@@ -302,14 +316,8 @@ fn a_part_a_few_percent_off_the_templates_scale_is_found_in_a_region() {
 /// flange does not reach, as lying free.
 #[test]
 fn a_type_whose_outline_is_part_of_the_parts_is_not_accepted_for_it() {
-    use lfi_bridge::sim::{SimConfig, catalog};
     let _shared = common::MACHINE.blocking_read();
-    let cat = catalog::generate(40, 41);
-    let sim = Simulator::with_catalogue(SimConfig { seed: 41, ..SimConfig::default() }, &cat).unwrap();
-    let est = Estimator::new(&sim.enrolled(&Params::default()).unwrap(), Params::default()).unwrap();
-    let scene = sim.scene(60).unwrap();
-    let names: Vec<&str> = scene.truth.parts.iter().map(|t| t.type_name.as_str()).collect();
-    assert_eq!(names, ["T032", "T020"], "the scene of the catalogue's eval set");
+    let (est, scene) = catalogue_scene(41, 60, &["T032", "T020"]);
     let fe = est.estimate(scene.image.view().unwrap()).unwrap();
     let flange = at(&fe.parts, scene.truth.parts[1].x_px, scene.truth.parts[1].y_px).expect("a result at the flange");
     assert_ne!(flange.type_name.as_deref(), Some("T014"), "{}", flange.detail());
@@ -329,14 +337,8 @@ fn a_type_whose_outline_is_part_of_the_parts_is_not_accepted_for_it() {
 /// against the full vote as well (`Estimator::check_glance`).
 #[test]
 fn a_part_the_glance_left_out_is_found_by_a_shape_like_it() {
-    use lfi_bridge::sim::{SimConfig, catalog};
     let _shared = common::MACHINE.blocking_read();
-    let cat = catalog::generate(40, 97);
-    let sim = Simulator::with_catalogue(SimConfig { seed: 97, ..SimConfig::default() }, &cat).unwrap();
-    let est = Estimator::new(&sim.enrolled(&Params::default()).unwrap(), Params::default()).unwrap();
-    let scene = sim.scene(78).unwrap();
-    let names: Vec<&str> = scene.truth.parts.iter().map(|t| t.type_name.as_str()).collect();
-    assert_eq!(names, ["T007", "T010"], "the scene of the catalogue's eval set");
+    let (est, scene) = catalogue_scene(97, 78, &["T007", "T010"]);
     let fe = est.estimate(scene.image.view().unwrap()).unwrap();
     let link = &scene.truth.parts[1];
     let p = at(&fe.parts, link.x_px, link.y_px).expect("a result at the link");
@@ -349,14 +351,8 @@ fn a_part_the_glance_left_out_is_found_by_a_shape_like_it() {
 /// part of a type not enrolled.
 #[test]
 fn an_unknown_part_alone_is_one_unknown_part() {
-    use lfi_bridge::sim::{SimConfig, catalog};
     let _shared = common::MACHINE.blocking_read();
-    let cat = catalog::generate(40, 97);
-    let sim = Simulator::with_catalogue(SimConfig { seed: 97, ..SimConfig::default() }, &cat).unwrap();
-    let est = Estimator::new(&sim.enrolled(&Params::default()).unwrap(), Params::default()).unwrap();
-    let scene = sim.scene(8).unwrap();
-    let names: Vec<&str> = scene.truth.parts.iter().map(|t| t.type_name.as_str()).collect();
-    assert_eq!(names, ["U02"], "the scene of the catalogue's eval set");
+    let (est, scene) = catalogue_scene(97, 8, &["U02"]);
     let fe = est.estimate(scene.image.view().unwrap()).unwrap();
     let stories: Vec<String> = fe.parts.iter().map(|p| p.detail()).collect();
     assert!(fe.parts.len() == 1 && fe.parts[0].reason == Reason::UnknownType, "{stories:#?}");

@@ -117,23 +117,18 @@ fn stretches(
     let reach = apart / other.pose.scale;
     let off: Vec<bool> = frame.iter().map(|&q| !other.index.any_within(to_other.apply(q), reach)).collect();
     let mut out = Stretches { len: 0.0, followed: 0.0, hidden: 0.0, longest: (0.0, None) };
-    let on_outline = |i: usize| part.any_within(frame[i], near);
     for run in runs(&frame, &off, min_run) {
-        let seen = if run.points.iter().any(|&i| excused(frame[i])) {
-            // Where parts touch, the region's outline runs around both, not into a pocket of
-            // belt between them: the frame's step across the template's outline there is as
-            // good a sign of the part's edge as the outline. Only there: elsewhere the outline
-            // is the part's own, and a step inside a part (a shaded rim, a boss) is no edge.
-            let shown = |i: usize| on_outline(i) || light.is_some_and(|l| l.shows(frame[i], outward(this, i), 0.5 * apart));
-            let seen = run.points.iter().filter(|&&i| shown(i)).map(|&i| run.step(&frame, i)).sum::<f64>();
-            if light.is_none() || seen < MOST_SHOWN * run.len {
-                out.hidden += run.len;
-                continue;
-            }
-            seen
-        } else {
-            run.points.iter().filter(|&&i| on_outline(i)).map(|&i| run.step(&frame, i)).sum::<f64>()
-        };
+        let against = run.points.iter().any(|&i| excused(frame[i]));
+        // Where parts touch, the region's outline runs around both, not into a pocket of belt
+        // between them: the frame's step across the template's outline there is as good a sign
+        // of the part's edge as the outline. Only there: elsewhere the outline is the part's
+        // own, and a step inside a part (a shaded rim, a boss) is no edge.
+        let lit = |i: usize| against && light.is_some_and(|l| l.shows(frame[i], outward(this, i), 0.5 * apart));
+        let seen = run.points.iter().filter(|&&i| part.any_within(frame[i], near) || lit(i)).map(|&i| run.step(&frame, i)).sum::<f64>();
+        if against && (light.is_none() || seen < MOST_SHOWN * run.len) {
+            out.hidden += run.len;
+            continue;
+        }
         out.len += run.len;
         out.followed += seen;
         if run.len > out.longest.0 {

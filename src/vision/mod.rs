@@ -586,8 +586,8 @@ impl Estimator {
     /// template voting in full: the same verdicts, types and faces, and poses within a pixel and
     /// a half and half a degree (a quarter of `eval`'s 2 degrees: an ICP from another start, a
     /// look-alike's pose rather than the vote's, ends up to about a pixel away), in any order.
-    /// `seen` is what
-    /// the region offered its parts (None: the glance found none, so the full vote must not).
+    /// `seen` is what the region offered its parts (None: the glance found none, so the full
+    /// vote must not).
     #[cfg(debug_assertions)]
     fn check_glance(&self, region: &clump::Region<'_>, seen: Option<&Seen<'_>>, glanced: &[PartEstimate]) {
         if self.lib.entries.len() <= clump::GLANCE_FROM {

@@ -66,30 +66,35 @@ pub(super) fn order(
         }
         Features { count: n, shown: if n > 0 { seen as f64 / n as f64 } else { 0.0 } }
     };
+    // How explanations `i` and `k` show inside each other: the points of each inside the other
+    // (eroded), their steps across (measured here, where they tell something, not for every
+    // point), features and whether there are enough points to tell a faint edge from none.
+    let measure = |found: &mut [Found], i: usize, k: usize| {
+        let (ii, kk) = (inside(&found[i].points, &eroded[k]), inside(&found[k].points, &eroded[i]));
+        for (x, idx) in [(i, &ii), (k, &kk)] {
+            for &j in idx {
+                found[x].points[j].across(edge);
+            }
+        }
+        let (si, sk) = (strength(&found[i].points, &ii), strength(&found[k].points, &kk));
+        let (fi, fk) = (features(&found[i], &deep[k]), features(&found[k], &deep[i]));
+        let enough = ii.len().min(kk.len()) >= 20;
+        Pair { ii, kk, si, sk, fi, fk, enough }
+    };
+    let m = edge.margin;
     let mut over: Vec<Vec<usize>> = vec![Vec::new(); found.len()];
     for (a, &i) in keep.iter().enumerate() {
         for &k in &keep[a + 1..] {
             if inside(&found[i].points, &deep[k]).len() < 4 && inside(&found[k].points, &deep[i]).len() < 4 {
                 continue; // touching at most
             }
-            let (ii, kk) = (inside(&found[i].points, &eroded[k]), inside(&found[k].points, &eroded[i]));
-            // The steps across are measured here, where they tell something, not for every point.
-            for (x, idx) in [(i, &ii), (k, &kk)] {
-                for &j in idx {
-                    found[x].points[j].across(edge);
-                }
-            }
-            let (si, sk) = (strength(&found[i].points, &ii), strength(&found[k].points, &kk));
-            let m = edge.margin;
-            let enough = ii.len().min(kk.len()) >= 20;
-            let (fi, fk) = (features(&found[i], &deep[k]), features(&found[k], &deep[i]));
-            let on_top = |a: Steps, b: Steps, fa: Features, fb: Features| lies_on_top(a, b, fa, fb, enough, m);
-            if on_top(si, sk, fi, fk) {
+            let p = measure(found, i, k);
+            if lies_on_top(p.si, p.sk, p.fi, p.fk, p.enough, m) {
                 found[k].under.get_or_insert(i);
-                over[i].extend(ii);
-            } else if on_top(sk, si, fk, fi) {
+                over[i].extend(p.ii);
+            } else if lies_on_top(p.sk, p.si, p.fk, p.fi, p.enough, m) {
                 found[i].under.get_or_insert(k);
-                over[k].extend(kk);
+                over[k].extend(p.kk);
             } else {
                 found[i].order_unclear = true;
                 found[k].order_unclear = true;
@@ -106,17 +111,8 @@ pub(super) fn order(
             if k == owner || found[k].under.is_some() || found[k].order_unclear || inside(&found[r].points, &deep[k]).len() < 4 {
                 continue;
             }
-            let (rr, kk) = (inside(&found[r].points, &eroded[k]), inside(&found[k].points, &eroded[r]));
-            for &j in &rr {
-                found[r].points[j].across(edge);
-            }
-            for &j in &kk {
-                found[k].points[j].across(edge);
-            }
-            let (sr, sk) = (strength(&found[r].points, &rr), strength(&found[k].points, &kk));
-            let enough = rr.len().min(kk.len()) >= 20;
-            let (fr, fk) = (features(&found[r], &deep[k]), features(&found[k], &deep[r]));
-            if lies_on_top(sr, sk, fr, fk, enough, edge.margin) {
+            let p = measure(found, r, k);
+            if lies_on_top(p.si, p.sk, p.fi, p.fk, p.enough, m) {
                 found[k].order_unclear = true;
             }
         }
@@ -130,6 +126,19 @@ pub(super) fn order(
         }
         found[i].support = pts.iter().filter(|p| p.seen).count() as f64 / pts.len().max(1) as f64;
     }
+}
+
+/// Two explanations measured inside each other (`order`'s `measure`): the indices of the first's
+/// points inside the second and of the second's inside the first, how each outline shows there,
+/// each one's features there, and whether both have enough points to tell a faint edge.
+struct Pair {
+    ii: Vec<usize>,
+    kk: Vec<usize>,
+    si: Steps,
+    sk: Steps,
+    fi: Features,
+    fk: Features,
+    enough: bool,
 }
 
 /// How one part's outline shows where it runs inside another part.
