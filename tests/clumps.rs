@@ -357,3 +357,18 @@ fn an_unknown_part_alone_is_one_unknown_part() {
     let stories: Vec<String> = fe.parts.iter().map(|p| p.detail()).collect();
     assert!(fe.parts.len() == 1 && fe.parts[0].reason == Reason::UnknownType, "{stories:#?}");
 }
+
+/// Where two faces of one outline tie in a region, what the image shows inside the part tells
+/// them apart, as it does for a part alone. The scene: T019 of the catalogue of seed 53, whose
+/// faces differ nowhere on the outline by the tolerance, lying face down against a T018; its
+/// face-down pockets show, and it was rejected *ambiguous*.
+#[test]
+fn two_faces_of_one_outline_against_a_neighbour_are_told_by_what_lies_inside() {
+    let _shared = common::MACHINE.blocking_read();
+    let (est, scene) = catalogue_scene(53, 59, &["T018", "T019"]);
+    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+    for t in &scene.truth.parts {
+        let p = at(&fe.parts, t.x_px, t.y_px).expect("a result at each part");
+        assert!(p.accepted && right(p, t), "{:?} {:?} {:.2}: {}", p.type_name, p.face, p.angle_deg, p.detail());
+    }
+}

@@ -663,13 +663,17 @@ impl Estimator {
             .collect();
         let follows = |r: &Rival| r.local.map(|l| l.follows());
         let tied: Vec<&(Explanation, Rival)> = judged.iter().filter(|(_, r)| r.ties(&limits)).collect();
-        let (best, other) = match tied.iter().find(|(_, r)| follows(r) == Some(Follows::Rival)) {
-            Some((s, _)) => (*s, Some(first)),
-            None => {
-                let reported = tied.iter().find(|(_, r)| follows(r) != Some(Follows::Best)).or(tied.first()).map(|(s, _)| *s);
-                (first, reported.or(judged.first().map(|(s, _)| *s)))
-            }
-        };
+        // Where the outlines do not tell, what lies inside may tell for the rival (as on the
+        // separate-part path, `inside`).
+        let inside_tells = |r: &Rival| r.features.is_some_and(|x| !x.tell() && x.reversed().tell());
+        let (best, other) =
+            match tied.iter().find(|(_, r)| follows(r) == Some(Follows::Rival)).or(tied.iter().find(|(_, r)| inside_tells(r))) {
+                Some((s, _)) => (*s, Some(first)),
+                None => {
+                    let reported = tied.iter().find(|(_, r)| follows(r) != Some(Follows::Best)).or(tied.first()).map(|(s, _)| *s);
+                    (first, reported.or(judged.first().map(|(s, _)| *s)))
+                }
+            };
         let e = &self.lib.entries[best.entry];
         let tpl = &e.template;
         let pose = best.reg.pose;
@@ -755,7 +759,7 @@ impl Estimator {
         };
         let tpl = &self.lib.entries[other.entry].template;
         let light = differ::Light::new(seen.frame, seen.brighter, seen.contrast, seen.noise);
-        Rival {
+        let mut rival = Rival {
             name: named(tpl),
             fit: coverage(other.entry, other.reg.pose),
             best: coverage(best.entry, best.reg.pose),
@@ -764,7 +768,16 @@ impl Estimator {
             confidence: if segments.is_empty() { 0.0 } else { confidence(&tpl.segments, segments, &other.reg.pose, diag, lambda) },
             local: Some(differ::compare(seen.outline_index, placed(best), placed(other), seen.excused, Some(&light), tight)),
             features: None,
+        };
+        // Where the outlines do not tell the two apart (two faces of one outline), what the
+        // image shows inside the part, away from any neighbour, may.
+        if rival.ties(&self.limits()) && matches!(rival.local.map(|l| l.follows()), None | Some(Follows::Unclear)) {
+            let edge = shape::EdgeTest::new(seen.coarse, seen.noise, seen.contrast);
+            let interior = |x: &Explanation| self.lib.entries[x.entry].template.interior.as_slice();
+            rival.features =
+                Some(shape::own_features(&edge, (interior(best), &best.reg.pose), (interior(other), &other.reg.pose), seen.excused));
         }
+        rival
     }
 
     /// A separate region, looked at as one part: its outline, line features and best template
@@ -1052,7 +1065,7 @@ impl Estimator {
         let k = cands.iter().position(|c| named(&self.lib.entries[c.entry].template) == r.name)?;
         let (best, other) = (&cands[0], &cands[k]);
         let interior = |c: &Candidate| self.lib.entries[c.entry].template.interior.as_slice();
-        let f = shape::own_features(edge, (interior(best), &best.reg.pose), (interior(other), &other.reg.pose));
+        let f = shape::own_features(edge, (interior(best), &best.reg.pose), (interior(other), &other.reg.pose), &|_| false);
         r.features = Some(f);
         (!f.tell() && f.reversed().tell()).then_some(k)
     }

@@ -195,11 +195,21 @@ impl<'a> EdgeTest<'a> {
 
 /// [`OwnFeatures`] of templates `a` and `b` (their interior features, see [`interior_edges`], and
 /// poses): a feature shows where the step across it, from the brighter side to the darker,
-/// reaches the edge threshold.
-pub(super) fn own_features(edge: &EdgeTest<'_>, a: (&[(Pt, Pt)], &Similarity), b: (&[(Pt, Pt)], &Similarity)) -> OwnFeatures {
+/// reaches the edge threshold. Points where `excused` holds (near or under another part found
+/// beside it) are not looked at: what shows there may be the other part's.
+pub(super) fn own_features(
+    edge: &EdgeTest<'_>,
+    a: (&[(Pt, Pt)], &Similarity),
+    b: (&[(Pt, Pt)], &Similarity),
+    excused: &dyn Fn(Pt) -> bool,
+) -> OwnFeatures {
     let placed = |(interior, pose): (&[(Pt, Pt)], &Similarity)| -> Vec<(Pt, Pt)> {
         let (to_frame, turn) = (pose.forward(), Affine::rotation(pose.angle_rad));
-        interior.iter().map(|&(q, n)| (to_frame.apply(q), turn.apply(n))).filter(|&(at, _)| edge.sample(at).is_some()).collect()
+        interior
+            .iter()
+            .map(|&(q, n)| (to_frame.apply(q), turn.apply(n)))
+            .filter(|&(at, _)| edge.sample(at).is_some() && !excused(at))
+            .collect()
     };
     let (pa, pb) = (placed(a), placed(b));
     let near = 2.0 * edge.factor as f64;
