@@ -372,3 +372,35 @@ fn two_faces_of_one_outline_against_a_neighbour_are_told_by_what_lies_inside() {
         assert!(p.accepted && right(p, t), "{:?} {:?} {:.2}: {}", p.type_name, p.face, p.angle_deg, p.detail());
     }
 }
+
+/// A catalogue with a small type decimates finer than the configured factor, but a frame is
+/// first looked at as coarsely as configured: that look stands only where each region is one
+/// part accepted as a type large enough for it. A region of several parts, a reject or a small
+/// type is looked at again at the finer factor; whatever stands is right.
+#[test]
+fn a_frame_of_large_parts_is_settled_by_the_first_coarse_look() {
+    let _shared = common::MACHINE.blocking_read();
+    let (est, _) = catalogue_scene(41, 0, &["T016"]);
+    let configured = Params::default().coarse_factor;
+    let sim = {
+        use lfi_bridge::sim::{SimConfig, catalog};
+        Simulator::with_catalogue(SimConfig { seed: 41, ..SimConfig::default() }, &catalog::generate(40, 41)).unwrap()
+    };
+    let mut looks = std::collections::BTreeMap::new();
+    for i in 0..9 {
+        let scene = sim.scene(i).unwrap();
+        let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+        *looks.entry(fe.decimation).or_insert(0) += 1;
+        let several = scene.truth.parts.len() > 1 && matches!(scene.truth.condition.as_str(), "touching" | "overlapping");
+        if fe.decimation == configured {
+            assert!(!several, "scene {i} ({}) settled by the first look", scene.truth.condition);
+            assert!(fe.parts.iter().all(|p| p.accepted), "scene {i}: a reject stood at the first look");
+        }
+        for p in fe.parts.iter().filter(|p| p.accepted) {
+            let t = scene.truth.parts.iter().find(|t| (p.x - t.x_px).hypot(p.y - t.y_px) < 60.0).expect("accepted where a part is");
+            assert!(right(p, t), "scene {i}: accepted {:?} {:?} {:.2} on {t:?}", p.type_name, p.face, p.angle_deg);
+        }
+    }
+    let finer = looks.keys().filter(|&&f| f < configured).count();
+    assert!(looks.get(&configured).is_some_and(|&n| n > 0) && finer == 1, "frames by decimation: {looks:?}");
+}

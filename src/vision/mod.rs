@@ -224,6 +224,10 @@ pub struct FrameEstimate {
     pub noise_sigma: f64,
     /// Wall time per stage.
     pub timings: Timings,
+    /// The decimation factor of the look that stands: the configured one when a first, coarser
+    /// look settled the frame, else the finer one the catalogue's smallest part needs (see
+    /// [`Estimator::estimate`]).
+    pub decimation: usize,
 }
 
 /// Why an estimator cannot be built.
@@ -261,6 +265,10 @@ pub struct Estimator {
     min_debris_area: f64,
     min_template_area: f64,
     max_template_area: f64,
+    /// The decimation a frame is looked at first when the catalogue's smallest part needs a
+    /// finer one (`Params::coarse_factor` as configured; `params` holds the finer): see
+    /// [`Estimator::estimate`].
+    first_factor: Option<usize>,
     /// Workers for frames of several regions (`Params::threads` > 1).
     pool: Option<Arc<rayon::ThreadPool>>,
 }
@@ -351,7 +359,9 @@ impl Estimator {
         // features and the closing need that much, whatever the camera's resolution.
         let min_radius = templates.iter().map(|t| t.rms_radius()).fold(f64::INFINITY, f64::min);
         let mut params = params;
-        params.coarse_factor = params.coarse_factor.min(((min_radius / 45.0) as usize).max(1));
+        let fine = params.coarse_factor.min(((min_radius / 45.0) as usize).max(1));
+        let first_factor = (fine < params.coarse_factor).then_some(params.coarse_factor);
+        params.coarse_factor = fine;
         let min_debris_area = params.debris_fraction * smallest;
         let pool = match params.threads {
             1 => None,
@@ -370,6 +380,7 @@ impl Estimator {
             min_debris_area,
             min_template_area: smallest,
             max_template_area: largest,
+            first_factor,
             pool,
         })
     }
@@ -463,28 +474,66 @@ impl Estimator {
     /// Estimates every part in the frame.
     pub fn estimate(&self, frame: GrayView<'_>) -> Result<FrameEstimate, FrameError> {
         let t0 = Instant::now();
-        let mut tm = Timings::default();
         // Pixel noise from the whole frame: the median of pixel differences is not moved by the
         // few percent of pixels on part edges.
         let noise = boundary::noise_sigma(frame, &[]);
-        let coarse = detect::detect(frame, &self.params.detect_params(self.min_area, self.min_debris_area))?;
-        tm.detect = ms(t0);
+        // Decimation is as coarse as the smallest part in the catalogue allows (about 45
+        // decimated pixels of radius, see `new`); one small type would make every frame pay
+        // for the finer one (detection is half a part's time). So a frame is first looked at
+        // as coarsely as configured, and that look stands when each region in it is one part
+        // the single-part look accepts as a type large enough for it (an empty belt, or
+        // debris only, included). Anything else (a reject, a small type, a region of several
+        // parts) is looked at again, the whole frame, at the finer factor, as if the first
+        // look had not been: the region search and every reject see what they always saw.
+        let effective = |f: usize| detect::effective_factor(f, frame.width(), frame.height());
+        if let Some(f) = self.first_factor.filter(|&f| effective(f) > effective(self.params.coarse_factor))
+            && let Some(first) = self.estimate_at(frame, noise, f, Some(45.0 * effective(f) as f64), t0)?
+        {
+            return Ok(first);
+        }
+        Ok(self.estimate_at(frame, noise, self.params.coarse_factor, None, t0)?.expect("every region is kept"))
+    }
+
+    /// [`Estimator::estimate`] at decimation `factor`, with the frame's `noise`; times from
+    /// `t0`. With `settle` (a first, coarser look), only what the first look may settle: None as
+    /// soon as a region is not one part accepted as a type of at least that rms radius.
+    fn estimate_at(
+        &self,
+        frame: GrayView<'_>,
+        noise: f64,
+        factor: usize,
+        settle: Option<f64>,
+        t0: Instant,
+    ) -> Result<Option<FrameEstimate>, FrameError> {
+        let mut tm = Timings::default();
+        let t = Instant::now();
+        let detect = detect::DetectParams { factor, ..self.params.detect_params(self.min_area, self.min_debris_area) };
+        let coarse = detect::detect(frame, &detect)?;
+        tm.detect = ms(t);
 
         // Each region on its own; several at once on the second core (`Params::threads`), one
         // on the calling thread only.
-        let region = |blob: &detect::Blob| self.estimate_blob(frame, &coarse, blob, noise);
+        let region = |blob: &detect::Blob| match settle {
+            None => self.estimate_blob(frame, &coarse, blob, noise).map(Some),
+            Some(large) => {
+                let mut tm = Timings::default();
+                let (est, _) = self.estimate_part(frame, &coarse, blob, noise, &mut tm)?;
+                let settled = est.accepted && est.matched.is_some_and(|(e, _)| self.lib.entries[e].template.rms_radius() >= large);
+                Ok(settled.then_some(Regional { parts: vec![est], debris: 0, timings: tm }))
+            }
+        };
         let each = workers::each(self.pool.as_deref(), &coarse.blobs, region);
         let mut parts = Vec::with_capacity(coarse.blobs.len());
         let mut debris = coarse.debris;
         for r in each {
-            let r = r?;
+            let Some(r) = r? else { return Ok(None) };
             parts.extend(r.parts);
             debris += r.debris;
             tm += r.timings;
         }
         parts.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
         tm.total = ms(t0);
-        Ok(FrameEstimate { parts, debris, noise_sigma: noise, timings: tm })
+        Ok(Some(FrameEstimate { parts, debris, noise_sigma: noise, timings: tm, decimation: coarse.factor }))
     }
 
     /// The parts of one coarse region: looked at as one part, and searched for several when
