@@ -659,3 +659,33 @@ fn a_search_that_explains_nothing_leaves_the_single_part_story() {
     assert!(search_explains(&unknown, &[&unseen, &unseen, &rest]));
     assert!(search_explains(&unknown, &[&unseen]));
 }
+
+/// Features inside that show the rival's own and not the best's speak against the best: its
+/// confidence lead no longer decides the tie (the rest of the ladder is as before).
+#[test]
+fn features_inside_against_the_best_outweigh_its_confidence_lead() {
+    let against = |a_count, a_shown, b_count, b_shown| OwnFeatures { a_count, a_shown, b_count, b_shown }.against();
+    assert!(against(54, 0.39, 26, 0.92), "the other face's pockets show, the best's hardly");
+    assert!(against(0, 0.0, 26, 0.92), "only the rival has own features, and they show");
+    assert!(!against(54, 0.8, 26, 0.92), "both show: neither tells, no word against");
+    assert!(!against(54, 0.39, 5, 1.0), "a few points of the rival's are not a feature");
+    assert!(!against(54, 0.39, 26, 0.5), "the rival's hardly show either");
+    let mut m = separate();
+    let lead = m.lines.as_ref().unwrap().confidence - limits().confidence_margin - 0.01;
+    let rival = |features| Rival {
+        name: named("bracket", Face::Down),
+        fit: 1.0,
+        best: 1.0,
+        tolerance: 2.0,
+        support: None,
+        confidence: lead,
+        local: Some(Local { best_len: 0.0, rival_len: 0.0, ..local(0.0, 0.0) }),
+        features,
+    };
+    m.rival = Some(rival(Some(OwnFeatures { a_count: 54, a_shown: 0.7, b_count: 26, b_shown: 0.5 })));
+    assert_eq!(decide(m.clone(), limits()).verdict, Verdict::Accept, "the lead decides where the features say nothing");
+    m.rival = Some(rival(Some(OwnFeatures { a_count: 54, a_shown: 0.39, b_count: 26, b_shown: 0.92 })));
+    let d = decide(m, limits());
+    assert_eq!(d.verdict.reason(), Reason::Ambiguous);
+    assert!(d.verdict.to_string().contains("the features inside show its own"), "{}", d.verdict);
+}
