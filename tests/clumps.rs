@@ -24,18 +24,38 @@ fn right(p: &PartEstimate, t: &lfi_bridge::truth::TruthPart) -> bool {
         && lfi_bridge::vision::geometry::angle_diff_deg(p.angle_deg, t.angle_deg).abs() <= 2.0
 }
 
-/// Scene `index` of the 40-type catalogue of `seed`, rendered as `simulate --catalog 40 --seed
-/// SEED` renders its eval set, with an estimator of the whole catalogue; the scene's parts must
-/// be `names` (the scene the eval found wrong).
-fn catalogue_scene(seed: u64, index: u64, names: &[&str]) -> (Estimator, lfi_bridge::sim::Scene) {
+/// The 40-type catalogue of `seed` as `simulate --catalog 40 --seed SEED` renders its eval set,
+/// with an estimator of the whole catalogue.
+fn catalogue(seed: u64) -> (Simulator, Estimator) {
     use lfi_bridge::sim::{SimConfig, catalog};
     let cat = catalog::generate(40, seed);
     let sim = Simulator::with_catalogue(SimConfig { seed, ..SimConfig::default() }, &cat).unwrap();
     let est = Estimator::new(&sim.enrolled(&Params::default()).unwrap(), Params::default()).unwrap();
+    (sim, est)
+}
+
+/// Scene `index` of the 40-type catalogue of `seed` ([`catalogue`]), with the estimator; the
+/// scene's parts must be `names` (the scene the eval found wrong).
+fn catalogue_scene(seed: u64, index: u64, names: &[&str]) -> (Estimator, lfi_bridge::sim::Scene) {
+    let (sim, est) = catalogue(seed);
     let scene = sim.scene(index).unwrap();
     let found: Vec<&str> = scene.truth.parts.iter().map(|t| t.type_name.as_str()).collect();
     assert_eq!(found, names, "the scene of the catalogue's eval set");
     (est, scene)
+}
+
+/// Whatever `parts` accepts lies on a true part of `truth` and is right (scene `i`).
+fn every_accept_is_right(parts: &[PartEstimate], truth: &lfi_bridge::truth::TruthRecord, i: u64) {
+    for p in parts.iter().filter(|p| p.accepted) {
+        let t = truth.parts.iter().find(|t| (p.x - t.x_px).hypot(p.y - t.y_px) < 60.0).expect("accepted where a part is");
+        assert!(right(p, t), "scene {i}: accepted {:?} {:?} {:.2} on {t:?}", p.type_name, p.face, p.angle_deg);
+    }
+}
+
+/// The result at true part `t` is accepted and right.
+fn picked(parts: &[PartEstimate], t: &lfi_bridge::truth::TruthPart) {
+    let p = at(parts, t.x_px, t.y_px).unwrap_or_else(|| panic!("no result at the {} {}", t.type_name, t.face));
+    assert!(p.accepted && right(p, t), "the {} {}: {:?} {:?} {:.2}: {}", t.type_name, t.face, p.type_name, p.face, p.angle_deg, p.detail());
 }
 
 #[test]
@@ -49,11 +69,7 @@ fn a_touching_pair_gives_both_parts() {
         pairs += 1;
         let found = scene.truth.parts.iter().filter(|t| at(&fe.parts, t.x_px, t.y_px).is_some_and(|p| p.accepted && right(p, t))).count();
         both += (found == 2) as usize;
-        // Whatever is accepted is right.
-        for p in fe.parts.iter().filter(|p| p.accepted) {
-            let t = scene.truth.parts.iter().find(|t| (p.x - t.x_px).hypot(p.y - t.y_px) < 60.0).expect("accepted where a part is");
-            assert!(right(p, t), "scene {i}: accepted {:?} {:?} {:.2} on {t:?}", p.type_name, p.face, p.angle_deg);
-        }
+        every_accept_is_right(&fe.parts, &scene.truth, i);
     }
     assert!(both * 100 >= pairs * 85, "both parts of {both} pairs of {pairs}");
 }
@@ -340,9 +356,7 @@ fn a_part_the_glance_left_out_is_found_by_a_shape_like_it() {
     let _shared = common::MACHINE.blocking_read();
     let (est, scene) = catalogue_scene(97, 78, &["T007", "T010"]);
     let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    let link = &scene.truth.parts[1];
-    let p = at(&fe.parts, link.x_px, link.y_px).expect("a result at the link");
-    assert!(p.accepted && right(p, link), "{:?} {:?} {:.2}: {}", p.type_name, p.face, p.angle_deg, p.detail());
+    picked(&fe.parts, &scene.truth.parts[1]);
 }
 
 /// One part alone on the belt is one story: an unknown fork (U02 of the catalogue of seed 97)
@@ -368,8 +382,7 @@ fn two_faces_of_one_outline_against_a_neighbour_are_told_by_what_lies_inside() {
     let (est, scene) = catalogue_scene(53, 59, &["T018", "T019"]);
     let fe = est.estimate(scene.image.view().unwrap()).unwrap();
     for t in &scene.truth.parts {
-        let p = at(&fe.parts, t.x_px, t.y_px).expect("a result at each part");
-        assert!(p.accepted && right(p, t), "{:?} {:?} {:.2}: {}", p.type_name, p.face, p.angle_deg, p.detail());
+        picked(&fe.parts, t);
     }
 }
 
@@ -380,12 +393,8 @@ fn two_faces_of_one_outline_against_a_neighbour_are_told_by_what_lies_inside() {
 #[test]
 fn a_frame_of_large_parts_is_settled_by_the_first_coarse_look() {
     let _shared = common::MACHINE.blocking_read();
-    let (est, _) = catalogue_scene(41, 0, &["T016"]);
+    let (sim, est) = catalogue(41);
     let configured = Params::default().coarse_factor;
-    let sim = {
-        use lfi_bridge::sim::{SimConfig, catalog};
-        Simulator::with_catalogue(SimConfig { seed: 41, ..SimConfig::default() }, &catalog::generate(40, 41)).unwrap()
-    };
     let mut looks = std::collections::BTreeMap::new();
     for i in 0..9 {
         let scene = sim.scene(i).unwrap();
@@ -396,10 +405,7 @@ fn a_frame_of_large_parts_is_settled_by_the_first_coarse_look() {
             assert!(!several, "scene {i} ({}) settled by the first look", scene.truth.condition);
             assert!(fe.parts.iter().all(|p| p.accepted), "scene {i}: a reject stood at the first look");
         }
-        for p in fe.parts.iter().filter(|p| p.accepted) {
-            let t = scene.truth.parts.iter().find(|t| (p.x - t.x_px).hypot(p.y - t.y_px) < 60.0).expect("accepted where a part is");
-            assert!(right(p, t), "scene {i}: accepted {:?} {:?} {:.2} on {t:?}", p.type_name, p.face, p.angle_deg);
-        }
+        every_accept_is_right(&fe.parts, &scene.truth, i);
     }
     let finer = looks.keys().filter(|&&f| f < configured).count();
     assert!(looks.get(&configured).is_some_and(|&n| n > 0) && finer == 1, "frames by decimation: {looks:?}");

@@ -199,22 +199,11 @@ impl fmt::Display for Verdict {
                         x.b_count
                     )
                 };
+                write!(f, "{} fits almost as well ({:.3}) and ", rival.name, rival.fit)?;
                 match rival.features {
-                    Some(x) if x.against() => write!(
-                        f,
-                        "{} fits almost as well ({:.3}) and the features inside show its own ({})",
-                        rival.name,
-                        rival.fit,
-                        shown(&x)
-                    )?,
-                    Some(x) => write!(
-                        f,
-                        "{} fits almost as well ({:.3}) and its line features are not clearly worse, nor do the features inside tell ({})",
-                        rival.name,
-                        rival.fit,
-                        shown(&x)
-                    )?,
-                    None => write!(f, "{} fits almost as well ({:.3}) and its line features are not clearly worse", rival.name, rival.fit)?,
+                    Some(x) if x.against() => write!(f, "the features inside show its own ({})", shown(&x))?,
+                    Some(x) => write!(f, "its line features are not clearly worse, nor do the features inside tell ({})", shown(&x))?,
+                    None => f.write_str("its line features are not clearly worse")?,
                 }
                 match rival.local {
                     Some(l) if l.best_len == 0.0 && l.rival_len == 0.0 && l.hidden_len == 0.0 => {
@@ -334,6 +323,11 @@ impl OwnFeatures {
         (a || b) && (!a || self.a_shown >= FEATURES_SHOWN) && (!b || self.b_shown <= FEATURES_RIVAL)
     }
 
+    /// Whether they tell for the second template instead: a tied rival they name is the part.
+    pub fn tell_second(&self) -> bool {
+        !self.tell() && self.reversed().tell()
+    }
+
     /// Whether they speak for the second template: the image shows most of its own features
     /// and not most of the first's. A part whose line features favour the first while what
     /// lies inside shows the second's pockets is no part to accept as the first (on the unseen
@@ -359,6 +353,12 @@ impl Rival {
     pub fn ties(&self, l: &Limits) -> bool {
         let within = |rival: f64, best: f64| rival >= best - l.ambiguity_margin;
         within(self.fit, self.best) && self.support.is_none_or(|(rival, best)| within(rival, best))
+    }
+
+    /// Whether it ties and where the two differ the outline does not tell (no stretches, or
+    /// unclear ones): then what lies inside is looked at ([`OwnFeatures`]), on either path.
+    pub fn outlines_do_not_tell(&self, l: &Limits) -> bool {
+        self.ties(l) && matches!(self.local.map(|x| x.follows()), None | Some(Follows::Unclear))
     }
 
     /// Whether the features inside tell the best from it ([`OwnFeatures::tell`]).

@@ -278,6 +278,11 @@ pub struct Estimator {
 /// well within it even before the registration has converged.
 const GIVE_UP_MARGIN: f64 = 0.15;
 
+/// Decimated pixels of rms radius a part needs: line features and the closing need that much,
+/// whatever the camera's resolution. The decimation goes only as far as the catalogue's smallest
+/// part keeps it, and a first, coarser look settles only parts that keep it there.
+const DECIMATED_RADIUS: f64 = 45.0;
+
 /// What one coarse region holds: its parts, the debris found in it, and the time each stage took.
 struct Regional {
     parts: Vec<PartEstimate>,
@@ -355,11 +360,9 @@ impl Estimator {
         let smallest = templates.iter().map(|t| t.area).fold(f64::INFINITY, f64::min);
         let largest = templates.iter().map(|t| t.area).fold(0.0, f64::max);
         let min_area = params.min_area.unwrap_or(0.25 * smallest);
-        // Decimate only as far as the smallest part keeps about 45 pixels of radius: line
-        // features and the closing need that much, whatever the camera's resolution.
-        let min_radius = templates.iter().map(|t| t.rms_radius()).fold(f64::INFINITY, f64::min);
+        let lib = Library::new(templates, params.signal_bins);
         let mut params = params;
-        let fine = params.coarse_factor.min(((min_radius / 45.0) as usize).max(1));
+        let fine = params.coarse_factor.min(((lib.smallest_radius / DECIMATED_RADIUS) as usize).max(1));
         let first_factor = (fine < params.coarse_factor).then_some(params.coarse_factor);
         params.coarse_factor = fine;
         let min_debris_area = params.debris_fraction * smallest;
@@ -373,16 +376,7 @@ impl Estimator {
                     .map_err(|e| EstimatorError::Threads { threads: n, why: e.to_string() })?,
             )),
         };
-        Ok(Self {
-            lib: Library::new(templates, params.signal_bins),
-            params,
-            min_area,
-            min_debris_area,
-            min_template_area: smallest,
-            max_template_area: largest,
-            first_factor,
-            pool,
-        })
+        Ok(Self { lib, params, min_area, min_debris_area, min_template_area: smallest, max_template_area: largest, first_factor, pool })
     }
 
     /// How far (template pixels) a part's outline may lie from template `entry`'s and still be
@@ -477,8 +471,8 @@ impl Estimator {
         // Pixel noise from the whole frame: the median of pixel differences is not moved by the
         // few percent of pixels on part edges.
         let noise = boundary::noise_sigma(frame, &[]);
-        // Decimation is as coarse as the smallest part in the catalogue allows (about 45
-        // decimated pixels of radius, see `new`); one small type would make every frame pay
+        // Decimation is as coarse as the smallest part in the catalogue allows
+        // ([`DECIMATED_RADIUS`]); one small type would make every frame pay
         // for the finer one (detection is half a part's time). So a frame is first looked at
         // as coarsely as configured, and that look stands when each region in it is one part
         // the single-part look accepts as a type large enough for it (an empty belt, or
@@ -487,7 +481,7 @@ impl Estimator {
         // look had not been: the region search and every reject see what they always saw.
         let effective = |f: usize| detect::effective_factor(f, frame.width(), frame.height());
         if let Some(f) = self.first_factor.filter(|&f| effective(f) > effective(self.params.coarse_factor))
-            && let Some(first) = self.estimate_at(frame, noise, f, Some(45.0 * effective(f) as f64), t0)?
+            && let Some(first) = self.estimate_at(frame, noise, f, Some(DECIMATED_RADIUS * effective(f) as f64), t0)?
         {
             return Ok(first);
         }
@@ -714,7 +708,7 @@ impl Estimator {
         let tied: Vec<&(Explanation, Rival)> = judged.iter().filter(|(_, r)| r.ties(&limits)).collect();
         // Where the outlines do not tell, what lies inside may tell for the rival (as on the
         // separate-part path, `inside`).
-        let inside_tells = |r: &Rival| r.features.is_some_and(|x| !x.tell() && x.reversed().tell());
+        let inside_tells = |r: &Rival| r.features.is_some_and(|x| x.tell_second());
         let (best, other) =
             match tied.iter().find(|(_, r)| follows(r) == Some(Follows::Rival)).or(tied.iter().find(|(_, r)| inside_tells(r))) {
                 Some((s, _)) => (*s, Some(first)),
@@ -820,7 +814,7 @@ impl Estimator {
         };
         // Where the outlines do not tell the two apart (two faces of one outline), what the
         // image shows inside the part, away from any neighbour, may.
-        if rival.ties(&self.limits()) && matches!(rival.local.map(|l| l.follows()), None | Some(Follows::Unclear)) {
+        if rival.outlines_do_not_tell(&self.limits()) {
             let edge = shape::EdgeTest::new(seen.coarse, seen.noise, seen.contrast);
             let interior = |x: &Explanation| self.lib.entries[x.entry].template.interior.as_slice();
             rival.features =
@@ -1108,7 +1102,7 @@ impl Estimator {
     /// index in `cands` when they tell for the rival instead of the best.
     fn inside(&self, rival: &mut Option<Rival>, cands: &[Candidate], edge: &shape::EdgeTest<'_>, limits: &decide::Limits) -> Option<usize> {
         let r = rival.as_mut()?;
-        if !r.ties(limits) || !matches!(r.local.map(|l| l.follows()), None | Some(Follows::Unclear)) {
+        if !r.outlines_do_not_tell(limits) {
             return None;
         }
         let k = cands.iter().position(|c| named(&self.lib.entries[c.entry].template) == r.name)?;
@@ -1116,7 +1110,7 @@ impl Estimator {
         let interior = |c: &Candidate| self.lib.entries[c.entry].template.interior.as_slice();
         let f = shape::own_features(edge, (interior(best), &best.reg.pose), (interior(other), &other.reg.pose), &|_| false);
         r.features = Some(f);
-        (!f.tell() && f.reversed().tell()).then_some(k)
+        f.tell_second().then_some(k)
     }
 
     /// Where candidates `best` and `rival` differ on the part (outline `part`), at the tight

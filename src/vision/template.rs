@@ -223,6 +223,9 @@ pub struct Library {
     /// superset of `alike`), each with its pose relative to it: what a region search holds a
     /// part it finds against.
     pub resembles: Vec<Vec<(usize, Similarity)>>,
+    /// The smallest template's rms radius, template pixels: what sets the decimation and how
+    /// near two glance peaks are one part's.
+    pub smallest_radius: f64,
 }
 
 /// Correlation distance within which two templates are look-alikes: revision siblings of the
@@ -283,7 +286,8 @@ impl Library {
         };
         let alike = within(4, ALIKE_CORR);
         let resembles = within(6, RESEMBLE_CORR);
-        Self { entries, correlator, alike, resembles }
+        let smallest_radius = entries.iter().map(|e| e.template.rms_radius()).fold(f64::INFINITY, f64::min);
+        Self { entries, correlator, alike, resembles, smallest_radius }
     }
 
     /// Every template by correlation distance to `part` (best first): the slow way, for

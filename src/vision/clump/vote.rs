@@ -106,25 +106,22 @@ impl<'a> Vote<'a> {
             }
             // Per place: beside a larger part, whose outline every shape like it votes for,
             // the smaller part's own template ranks low overall but high where it lies.
-            let reach = lib.entries.iter().map(|e| e.template.rms_radius()).fold(f64::INFINITY, f64::min);
             let mut places: Vec<(Pt, usize)> = Vec::new();
             let mut extra: Vec<usize> = Vec::new();
             for &(ei, _, at) in &shares {
-                match places.iter().position(|(c, _)| (at - *c).norm() <= reach) {
+                let admitted = match places.iter().position(|(c, _)| (at - *c).norm() <= lib.smallest_radius) {
                     Some(k) if places[k].1 < GLANCE_PLACE => {
                         places[k].1 += 1;
-                        if !keep.contains(&ei) && !extra.contains(&ei) {
-                            extra.push(ei);
-                        }
+                        true
                     }
-                    Some(_) => {}
                     None if places.len() < GLANCE_PLACES => {
                         places.push((at, 1));
-                        if !keep.contains(&ei) && !extra.contains(&ei) {
-                            extra.push(ei);
-                        }
+                        true
                     }
-                    None => {}
+                    _ => false,
+                };
+                if admitted && !keep.contains(&ei) && !extra.contains(&ei) {
+                    extra.push(ei);
                 }
             }
             keep.extend(extra);

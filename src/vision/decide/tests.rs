@@ -596,23 +596,27 @@ fn the_text_names_the_verdict_first_then_the_evidence() {
     assert!(far.to_string().starts_with("the outline runs onto something else"), "{far}");
 }
 
+/// The other face of one outline, tied with the best (its outline fits as well and differs from
+/// it nowhere), with line-feature `confidence` and what the features inside show.
+fn one_outline_tie(confidence: f64, features: Option<OwnFeatures>) -> Rival {
+    Rival {
+        name: named("bracket", Face::Down),
+        fit: 1.0,
+        best: 1.0,
+        tolerance: 2.0,
+        support: None,
+        confidence,
+        local: Some(Local { best_len: 0.0, rival_len: 0.0, ..local(0.0, 0.0) }),
+        features,
+    }
+}
+
 /// The features inside tell the best from a tied rival when one has own features: most of the
 /// best's shown, little of the rival's.
 #[test]
 fn own_features_inside_tell_faces_of_one_outline() {
     let tells = |a_count: usize, a_shown: f64, b_count: usize, b_shown: f64| {
-        let features = Some(OwnFeatures { a_count, a_shown, b_count, b_shown });
-        Rival {
-            name: named("bracket", Face::Down),
-            fit: 1.0,
-            best: 1.0,
-            tolerance: 2.0,
-            support: None,
-            confidence: 0.7,
-            local: None,
-            features,
-        }
-        .features_tell()
+        one_outline_tie(0.7, Some(OwnFeatures { a_count, a_shown, b_count, b_shown })).features_tell()
     };
     assert!(tells(52, 1.0, 0, 0.0));
     assert!(tells(0, 0.0, 52, 0.0));
@@ -624,17 +628,11 @@ fn own_features_inside_tell_faces_of_one_outline() {
     assert!(tells(40, 0.9, 5, 1.0), "a few points of the rival's are not a feature");
     // In the ladder: the same tie, ambiguous without the features, accepted with them.
     let mut m = separate();
-    let rival = |features| Rival {
-        name: named("bracket", Face::Down),
-        fit: 1.0,
-        best: 1.0,
-        tolerance: 2.0,
-        support: None,
-        confidence: m.lines.as_ref().unwrap().confidence,
-        local: Some(Local { best_len: 0.0, rival_len: 0.0, ..local(0.0, 0.0) }),
-        features,
-    };
-    let (without, with) = (rival(None), rival(Some(OwnFeatures { a_count: 52, a_shown: 1.0, b_count: 0, b_shown: 0.0 })));
+    let confidence = m.lines.as_ref().unwrap().confidence;
+    let (without, with) = (
+        one_outline_tie(confidence, None),
+        one_outline_tie(confidence, Some(OwnFeatures { a_count: 52, a_shown: 1.0, b_count: 0, b_shown: 0.0 })),
+    );
     m.rival = Some(without);
     assert_eq!(decide(m.clone(), limits()).verdict.reason(), Reason::Ambiguous);
     m.rival = Some(with);
@@ -672,19 +670,9 @@ fn features_inside_against_the_best_outweigh_its_confidence_lead() {
     assert!(!against(54, 0.39, 26, 0.5), "the rival's hardly show either");
     let mut m = separate();
     let lead = m.lines.as_ref().unwrap().confidence - limits().confidence_margin - 0.01;
-    let rival = |features| Rival {
-        name: named("bracket", Face::Down),
-        fit: 1.0,
-        best: 1.0,
-        tolerance: 2.0,
-        support: None,
-        confidence: lead,
-        local: Some(Local { best_len: 0.0, rival_len: 0.0, ..local(0.0, 0.0) }),
-        features,
-    };
-    m.rival = Some(rival(Some(OwnFeatures { a_count: 54, a_shown: 0.7, b_count: 26, b_shown: 0.5 })));
+    m.rival = Some(one_outline_tie(lead, Some(OwnFeatures { a_count: 54, a_shown: 0.7, b_count: 26, b_shown: 0.5 })));
     assert_eq!(decide(m.clone(), limits()).verdict, Verdict::Accept, "the lead decides where the features say nothing");
-    m.rival = Some(rival(Some(OwnFeatures { a_count: 54, a_shown: 0.39, b_count: 26, b_shown: 0.92 })));
+    m.rival = Some(one_outline_tie(lead, Some(OwnFeatures { a_count: 54, a_shown: 0.39, b_count: 26, b_shown: 0.92 })));
     let d = decide(m, limits());
     assert_eq!(d.verdict.reason(), Reason::Ambiguous);
     assert!(d.verdict.to_string().contains("the features inside show its own"), "{}", d.verdict);
