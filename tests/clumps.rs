@@ -372,6 +372,34 @@ fn an_unknown_part_alone_is_one_unknown_part() {
     assert!(fe.parts.len() == 1 && fe.parts[0].reason == Reason::UnknownType, "{stories:#?}");
 }
 
+/// An unknown part touching a known one is a type not enrolled, not a part something lies
+/// against: the catalogue of seed 11's U04 has its lugs where its closest template (T006 down)
+/// has none, on open belt away from the T026 it touches. The T026 is picked.
+#[test]
+fn an_unknown_part_touching_a_known_one_is_a_type_not_enrolled() {
+    let _shared = common::MACHINE.blocking_read();
+    let (est, scene) = catalogue_scene(11, 35, &["U04", "T026"]);
+    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+    picked(&fe.parts, &scene.truth.parts[1]);
+    let u = &scene.truth.parts[0];
+    let p = at(&fe.parts, u.x_px, u.y_px).expect("a result at the unknown part");
+    assert!(!p.accepted && p.reason == Reason::UnknownType, "{}", p.detail());
+}
+
+/// A region no template explains and that shows little of the closest one's outline is one
+/// part of a type not enrolled, even when larger than that template (U04 of the catalogue of
+/// seed 29, alone, a third larger than the T012 its signature is nearest).
+#[test]
+fn a_region_like_no_template_is_an_unknown_part_whatever_its_size() {
+    let _shared = common::MACHINE.blocking_read();
+    let (est, scene) = catalogue_scene(29, 8, &["U04", "T001"]);
+    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+    picked(&fe.parts, &scene.truth.parts[1]);
+    let u = &scene.truth.parts[0];
+    let p = at(&fe.parts, u.x_px, u.y_px).expect("a result at the unknown part");
+    assert!(!p.accepted && p.reason == Reason::UnknownType, "{}", p.detail());
+}
+
 /// Where two faces of one outline tie in a region, what the image shows inside the part tells
 /// them apart, as it does for a part alone. The scene: T019 of the catalogue of seed 53, whose
 /// faces differ nowhere on the outline by the tolerance, lying face down against a T018; its

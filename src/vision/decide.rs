@@ -47,11 +47,13 @@ pub enum Verdict {
         area: f64,
     },
     /// No template's outline fits at least `need`; `merged` when the region is also larger
-    /// than the closest template (several parts), which makes it touching rather than unknown.
+    /// than the closest template and shows most of its outline (that part and more: several
+    /// parts), which makes it touching rather than unknown.
     NoFit {
         /// The least fit that names a type.
         need: f64,
-        /// The region is also larger than the closest template: several parts, not an unknown one.
+        /// The region is also larger than the closest template and shows most of its outline:
+        /// several parts, not an unknown one.
         merged: bool,
     },
     /// The best fit is at a scale outside the accepted range.
@@ -605,8 +607,8 @@ pub struct Measured {
     /// The line features' agreement at the best pose.
     pub lines: Option<Lines>,
     /// Where the part departs most from the best template, measured when it was told from a
-    /// tied sibling by where the two differ, or when it is alone in its region and the best
-    /// explains too little of it.
+    /// tied sibling by where the two differ, or when the best explains too little of a part in
+    /// a region (beside others, only where nothing could hide the part's outline).
     pub departure: Option<Departure>,
     /// Edge pixels of other material inside the gripper's keep-out footprint (three or more:
     /// a speck of noise is not an obstacle); `Some(0)` when the footprint is clear or the part
@@ -685,7 +687,11 @@ fn ladder(m: &Measured, l: &Limits, mut seen: impl FnMut(Test, bool)) -> Option<
     if let Some(o) = &m.outline
         && test(Test::Fit, o.fit >= l.min_fit)
     {
-        let merged = m.area.is_some_and(|a| a > l.touching_area_ratio * o.nominal);
+        // Several parts: the region is much larger than the part it resembles, and does
+        // resemble it (most of the template's outline lies on the region's). A region that
+        // shows little of any template is one part no template explains, whatever its size
+        // (up to the largest a part can be, above): a type not enrolled, not a pile.
+        let merged = m.area.is_some_and(|a| a > l.touching_area_ratio * o.nominal) && o.coverage >= 0.5;
         return Some(Verdict::NoFit { need: l.min_fit, merged });
     }
     if let Some(scale) = m.outline.as_ref().map(|o| o.scale).or(m.region.as_ref().map(|r| r.scale))
@@ -705,11 +711,12 @@ fn ladder(m: &Measured, l: &Limits, mut seen: impl FnMut(Test, bool)) -> Option<
         });
     }
     // Part of its outline unexplained: something lies on or against it, unless it is alone in
-    // its region: then it is the part that differs.
+    // its region, or it lacks material the template has where nothing could hide it (deep and
+    // wide, on open belt): then it is the part that differs.
     if let Some(r) = &m.region
         && test(Test::Support, r.support >= l.min_support)
     {
-        return Some(if m.alone {
+        return Some(if m.alone || m.departure.is_some_and(|d| d.counts(l)) {
             Verdict::Unlike { like: r.best.clone(), rival: None, departure: m.departure }
         } else {
             Verdict::Unseen { support: r.support, need: l.min_support }

@@ -771,6 +771,20 @@ impl Estimator {
                 local.hidden_len += d.len;
                 m.departure = None;
             }
+        } else if best.support < limits.min_support {
+            // Beside others and part of its outline unexplained: something lies on or against
+            // it, or it is a type not enrolled. Where the template's outline runs over open belt
+            // (outside the region, away from every part found here), nothing hides it: the part
+            // lacks material the template has, its own difference. Inside the region's
+            // silhouette it may be under or against something else, and is not judged; nor is
+            // the region's outline beyond the template's (it runs around whatever else lies
+            // here).
+            let near = register::tight_tolerance(best.reg.rms, p.fit_tolerance, best.tolerance);
+            let (apart, min_run) = differ::separation(near);
+            let placed = differ::Placed { index: &e.index, pose, centroid: tpl.centroid };
+            let light = differ::Light::new(seen.frame, seen.brighter, seen.contrast, seen.noise);
+            let covered = |q: Pt| (seen.excused)(q) || (geometry::contains(seen.outline, q) && !seen.outline_index.any_within(q, apart));
+            m.departure = differ::departure(seen.outline_index, placed, Some(&light), &covered, false, apart, min_run);
         }
         // The footprint is looked at only for a part nothing else rejects.
         if decide::failed(&m, &limits).is_none() {

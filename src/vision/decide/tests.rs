@@ -456,15 +456,40 @@ fn alone_in_its_region_a_part_not_all_explained_is_a_type_not_enrolled() {
 }
 
 /// A region much larger than the template it resembles is several parts (touching), not an
-/// unknown type.
+/// unknown type; one that shows little of the template's outline does not resemble it: one part
+/// no template explains, a type not enrolled, whatever its size.
 #[test]
 fn no_fit_on_a_region_twice_the_part_is_touching() {
     let mut m = separate();
-    m.outline.as_mut().unwrap().fit = 0.5;
+    let o = m.outline.as_mut().unwrap();
+    (o.fit, o.coverage) = (0.5, 0.9);
     m.area = Some(110_000.0);
-    let d = decide(m, limits());
+    let d = decide(m.clone(), limits());
     assert_eq!(d.verdict, Verdict::NoFit { need: 0.75, merged: true });
     assert_eq!(d.verdict.reason(), Reason::Touching);
+    let o = m.outline.as_mut().unwrap();
+    (o.fit, o.coverage) = (0.3, 0.3);
+    let d = decide(m, limits());
+    assert_eq!(d.verdict, Verdict::NoFit { need: 0.75, merged: false });
+    assert_eq!(d.verdict.reason(), Reason::UnknownType);
+}
+
+/// Beside another part, a part not all explained is one something lies on or against, unless
+/// it lacks material the template has, deep and wide, where nothing hides it: then it is the
+/// part that differs. A shallow departure says nothing.
+#[test]
+fn beside_others_a_part_lacking_the_templates_material_on_open_belt_is_a_type_not_enrolled() {
+    let mut m = region();
+    m.region.as_mut().unwrap().support = 0.73;
+    let notch =
+        Departure { len: 184.0, width: 40.0, depth: 24.0, apart: 6.0, reach: 24.0, at_deg: 270.0, part_lacks: true, less_material: true };
+    m.departure = Some(Departure { depth: 7.0, ..notch });
+    let d = decide(m.clone(), limits());
+    assert!(matches!(d.verdict, Verdict::Unseen { .. }), "{}", d.verdict);
+    m.departure = Some(notch);
+    let d = decide(m, limits());
+    assert!(matches!(&d.verdict, Verdict::Unlike { rival: None, departure: Some(_), .. }), "{}", d.verdict);
+    assert_eq!(d.verdict.reason(), Reason::UnknownType);
 }
 
 /// A record that stops short of a type or of the line features is never accepted.
