@@ -360,12 +360,6 @@ impl Estimator {
         let smallest = templates.iter().map(|t| t.area).fold(f64::INFINITY, f64::min);
         let largest = templates.iter().map(|t| t.area).fold(0.0, f64::max);
         let min_area = params.min_area.unwrap_or(0.25 * smallest);
-        let lib = Library::new(templates, params.signal_bins);
-        let mut params = params;
-        let fine = params.coarse_factor.min(((lib.smallest_radius / DECIMATED_RADIUS) as usize).max(1));
-        let first_factor = (fine < params.coarse_factor).then_some(params.coarse_factor);
-        params.coarse_factor = fine;
-        let min_debris_area = params.debris_fraction * smallest;
         let pool = match params.threads {
             1 => None,
             n => Some(Arc::new(
@@ -376,6 +370,12 @@ impl Estimator {
                     .map_err(|e| EstimatorError::Threads { threads: n, why: e.to_string() })?,
             )),
         };
+        let lib = Library::on(templates, params.signal_bins, pool.as_deref());
+        let mut params = params;
+        let fine = params.coarse_factor.min(((lib.smallest_radius / DECIMATED_RADIUS) as usize).max(1));
+        let first_factor = (fine < params.coarse_factor).then_some(params.coarse_factor);
+        params.coarse_factor = fine;
+        let min_debris_area = params.debris_fraction * smallest;
         Ok(Self { lib, params, min_area, min_debris_area, min_template_area: smallest, max_template_area: largest, first_factor, pool })
     }
 
@@ -673,18 +673,18 @@ impl Estimator {
         // nearly as well supported), the one the part follows where their templates differ.
         // Where another part found here lies against or over it, its own outline is not seen:
         // neither compared nor judged there.
-        let others: Vec<(OutlineIndex, Vec<Pt>)> = ex
+        let others: Vec<(OutlineIndex, geometry::Inside)> = ex
             .parts
             .iter()
             .filter(|o| !std::ptr::eq(*o, f))
             .map(|o| {
                 let at = o.reg.pose.forward();
                 let outline: Vec<Pt> = self.lib.entries[o.entry].template.outline.iter().map(|&q| at.apply(q)).collect();
-                (OutlineIndex::of_frame(&outline), outline)
+                (OutlineIndex::of_frame(&outline), geometry::Inside::new(&outline))
             })
             .collect();
         let reach = 3.0 * self.clean_tolerance(seen.noise);
-        let excused = |q: Pt| others.iter().any(|(index, outline)| index.any_within(q, reach) || geometry::contains(outline, q));
+        let excused = |q: Pt| others.iter().any(|(index, inside)| index.any_within(q, reach) || inside.contains(q));
         let seen = &Seen { excused: &excused, ..*seen };
         // Every other explanation is held against the first, as the separate-part path holds
         // every candidate: one the part follows where they differ is the part; else the rival
@@ -783,7 +783,8 @@ impl Estimator {
             let (apart, min_run) = differ::separation(near);
             let placed = differ::Placed { index: &e.index, pose, centroid: tpl.centroid };
             let light = differ::Light::new(seen.frame, seen.brighter, seen.contrast, seen.noise);
-            let covered = |q: Pt| (seen.excused)(q) || (geometry::contains(seen.outline, q) && !seen.outline_index.any_within(q, apart));
+            let region = geometry::Inside::new(seen.outline);
+            let covered = |q: Pt| (seen.excused)(q) || (region.contains(q) && !seen.outline_index.any_within(q, apart));
             m.departure = differ::departure(seen.outline_index, placed, Some(&light), &covered, false, apart, min_run);
         }
         // The footprint is looked at only for a part nothing else rejects.

@@ -7,7 +7,7 @@ use opencv::prelude::*;
 
 use super::decide::OwnFeatures;
 use super::detect::Coarse;
-use super::geometry::{Affine, Pt, Similarity, contains, outward_normals, resample_closed, smooth_closed};
+use super::geometry::{Affine, Inside, Pt, Similarity, outward_normals, resample_closed, smooth_closed};
 use super::register::OutlineIndex;
 
 /// Width below which a gap between two lobes of a template's outline is not verified, template
@@ -57,8 +57,8 @@ impl ShapeModel {
         // slit beside a boss), the same part may show the gap or bridge it, depending on blur,
         // light, tilt and the decimated closing: neither seeing nor missing it there says
         // anything, so those points are not verified.
-        let coarse_poly = resample_closed(outline, 4.0);
-        let in_gap = |p: Pt, n: Pt| (1..=(NARROW_GAP / 2.0) as usize).any(|k| contains(&coarse_poly, p + n.scale(2.0 * k as f64)));
+        let coarse_poly = Inside::new(&resample_closed(outline, 4.0));
+        let in_gap = |p: Pt, n: Pt| (1..=(NARROW_GAP / 2.0) as usize).any(|k| coarse_poly.contains(p + n.scale(2.0 * k as f64)));
         let verify = fp.iter().copied().zip(fnm).filter(|&(p, n)| !in_gap(p, n)).collect();
         let radius = outline.iter().map(|p| (*p - centroid).norm()).fold(0.0, f64::max);
         Self { vote, verify, radius }
@@ -247,7 +247,7 @@ pub fn interior_edges(coarse: &Coarse, outline: &[Pt], noise: f64, contrast: f64
     }
     let test = EdgeTest::new(coarse, noise, contrast);
     let index = OutlineIndex::of_frame(outline);
-    let poly = resample_closed(outline, 4.0);
+    let poly = Inside::new(&resample_closed(outline, 4.0));
     let f = coarse.factor as f64;
     let least = (contrast / 3.0).max(test.threshold);
     let mut out = Vec::new();
@@ -257,7 +257,7 @@ pub fn interior_edges(coarse: &Coarse, outline: &[Pt], noise: f64, contrast: f64
                 continue;
             }
             let p = Pt::new(u as f64 * f + (f - 1.0) / 2.0, v as f64 * f + (f - 1.0) / 2.0);
-            if !contains(&poly, p) || index.any_within(p, INTERIOR_MARGIN) {
+            if !poly.contains(p) || index.any_within(p, INTERIOR_MARGIN) {
                 continue;
             }
             let Some(g) = test.gradient(p) else { continue };

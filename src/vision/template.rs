@@ -12,6 +12,7 @@ use super::part::Face;
 use super::register::OutlineIndex;
 use super::shape::ShapeModel;
 use super::signal::log_radius_signal;
+use super::workers::each;
 
 /// What the estimator knows about one face of one part type.
 #[derive(Debug, Clone, PartialEq)]
@@ -247,40 +248,41 @@ pub const RESEMBLE_CORR: f64 = 0.25;
 impl Library {
     /// Compiles `templates` with signals of `bins` bins.
     pub fn new(templates: &[Template], bins: usize) -> Self {
+        Self::on(templates, bins, None)
+    }
+
+    /// [`Library::new`], the templates compiled side by side on `pool` (the same library: each
+    /// template's tables are its own). Most of loading a knowledge base is here: each
+    /// template's pruned nearest-segment grid, its verification points, its six nearest.
+    pub fn on(templates: &[Template], bins: usize, pool: Option<&rayon::ThreadPool>) -> Self {
         let correlator = Correlator::new(bins);
-        let entries = templates
-            .iter()
-            .map(|t| {
-                let signal = log_radius_signal(&t.outline, t.centroid, bins);
-                let (lo, hi) = bounds(&t.outline);
-                let spectrum = correlator.spectrum(&signal);
-                Compiled {
-                    template: t.clone(),
-                    key: Key::of(&spectrum),
-                    spectrum,
-                    index: OutlineIndex::new(&t.outline),
-                    diag: (hi - lo).norm(),
-                    shape: ShapeModel::new(&t.outline, t.centroid),
-                }
-            })
-            .collect::<Vec<Compiled>>();
+        let entries = each(pool, templates, |t| {
+            let signal = log_radius_signal(&t.outline, t.centroid, bins);
+            let (lo, hi) = bounds(&t.outline);
+            let spectrum = correlator.spectrum(&signal);
+            Compiled {
+                template: t.clone(),
+                key: Key::of(&spectrum),
+                spectrum,
+                index: OutlineIndex::new(&t.outline),
+                diag: (hi - lo).norm(),
+                shape: ShapeModel::new(&t.outline, t.centroid),
+            }
+        });
         // The six nearest of each (itself among them), with their rank: look-alikes are looked
         // for among the four nearest.
-        let near: Vec<Vec<(usize, usize, Similarity, f64)>> = entries
-            .iter()
-            .enumerate()
-            .map(|(i, e)| {
-                nearest_of(&entries, &correlator, &e.spectrum, 6)
-                    .into_iter()
-                    .enumerate()
-                    .filter(|&(_, (j, al))| j != i && al.rms <= RESEMBLE_CORR)
-                    .map(|(rank, (j, al))| {
-                        // The other's outline placed on this one's, as a part's would be.
-                        (rank, j, placed(&correlator, &al, entries[j].template.centroid, e.template.centroid), al.rms)
-                    })
-                    .collect()
-            })
-            .collect();
+        let numbered: Vec<(usize, &Compiled)> = entries.iter().enumerate().collect();
+        let near: Vec<Vec<(usize, usize, Similarity, f64)>> = each(pool, &numbered, |&(i, e)| {
+            nearest_of(&entries, &correlator, &e.spectrum, 6)
+                .into_iter()
+                .enumerate()
+                .filter(|&(_, (j, al))| j != i && al.rms <= RESEMBLE_CORR)
+                .map(|(rank, (j, al))| {
+                    // The other's outline placed on this one's, as a part's would be.
+                    (rank, j, placed(&correlator, &al, entries[j].template.centroid, e.template.centroid), al.rms)
+                })
+                .collect()
+        });
         let within = |ranks: usize, corr: f64| -> Vec<Vec<(usize, Similarity)>> {
             near.iter().map(|r| r.iter().filter(|x| x.0 < ranks && x.3 <= corr).map(|x| (x.1, x.2)).collect()).collect()
         };
