@@ -15,6 +15,9 @@ const CELL: f64 = 12.0;
 const TURN_TOLERANCE: i32 = 30;
 /// Poses per template kept from the vote.
 const PEAKS_PER_TEMPLATE: usize = 3;
+/// Candidate cells of a template's vote sorted at first in search of its peaks (the rest are
+/// sorted only when these do not hold them all).
+const CANDIDATES_SORTED: usize = 48;
 /// Hypotheses refined and verified per region, best votes first.
 const MAX_HYPOTHESES: usize = 10;
 /// A catalogue of more templates than this votes twice: every template at a glance (one region
@@ -192,7 +195,7 @@ struct Accumulator {
     /// Per cell: the votes, and the sum of their fine angles relative to their bin's start, in
     /// one 32-bit word (a cell would need thousands of votes to saturate either).
     cells: Vec<[u16; 2]>,
-    /// Cells with a vote (to clear).
+    /// Room for the cells with a vote (to clear), kept between templates ([`vote`] fills it).
     touched: Vec<u32>,
     /// Cells that reached the candidate floor.
     tall: Vec<u32>,
@@ -256,10 +259,19 @@ fn vote(
     let floor = (model.vote.len() / 20 / thin).clamp(3, u16::MAX as usize) as u16;
     // Each bin's votes, and the sum of their fine angles relative to the bin's start, so that a
     // peak's angle is the mean of its votes rather than the bin's centre.
+    // Each vote's cell is written to `touched`, the count moving only when it is the cell's
+    // first vote: half the votes are, and a branch on it would be mispredicted as often (the
+    // glance's voting 4.4-5.8 -> 2.5-3.8 ms on a touching pair of the 40-type catalogue).
+    // Room for every vote of a point is made before its loop.
+    let mut touched = std::mem::take(&mut acc.touched);
+    let mut n_touched = 0usize;
     for &(p, beta, turn) in scene {
         // Only points where the outlines bend alike can correspond: a fraction of the pairs.
         let from = model.vote.partition_point(|v| v.2 < turn - TURN_TOLERANCE);
         let to = model.vote.partition_point(|v| v.2 <= turn + TURN_TOLERANCE);
+        if touched.len() < n_touched + (to - from) {
+            touched.resize(n_touched + (to - from), 0);
+        }
         let (px, py) = ((p.x - lo.x) / CELL, (p.y - lo.y) / CELL);
         let (nxf, nyf) = (nx as f64, ny as f64);
         for &(d, alpha, _) in &model.vote[from..to] {
@@ -279,9 +291,8 @@ fn vote(
             cell[0] = cell[0].saturating_add(1);
             cell[1] = cell[1].saturating_add((fine - b * per_bin) as u16);
             let v = cell[0];
-            if v == 1 {
-                acc.touched.push(k as u32);
-            }
+            touched[n_touched] = k as u32;
+            n_touched += usize::from(v == 1);
             if v == floor {
                 acc.tall.push(k as u32);
             }
@@ -300,8 +311,6 @@ fn vote(
         }
         s
     };
-    // In cell order, so that equal sums rank as a scan of the whole accumulator would.
-    acc.tall.sort_unstable();
     let mut cands: Vec<(u32, usize, usize, usize)> = acc
         .tall
         .iter()
@@ -311,9 +320,24 @@ fn vote(
             (box_sum(b, y, x), b, y, x)
         })
         .collect();
-    cands.sort_by_key(|c| std::cmp::Reverse(c.0));
+    // The largest sums first, equal sums in cell order, as a scan of the whole accumulator
+    // would rank them. The peaks are nearly always among the first few dozen: those are
+    // picked out and sorted, the rest only when they are not.
+    let order = |a: &(u32, usize, usize, usize), c: &(u32, usize, usize, usize)| c.0.cmp(&a.0).then((a.1, a.2, a.3).cmp(&(c.1, c.2, c.3)));
+    let mut sorted = CANDIDATES_SORTED.min(cands.len());
+    if sorted < cands.len() {
+        cands.select_nth_unstable_by(sorted, order);
+    }
+    cands[..sorted].sort_unstable_by(order);
     let mut peaks: Vec<(u32, usize, usize, usize)> = Vec::new();
-    for c in cands {
+    let mut i = 0;
+    while i < cands.len() && peaks.len() < PEAKS_PER_TEMPLATE {
+        if i == sorted {
+            cands[sorted..].sort_unstable_by(order);
+            sorted = cands.len();
+        }
+        let c = cands[i];
+        i += 1;
         let near = peaks.iter().any(|p| {
             let db = (c.1 as isize - p.1 as isize).rem_euclid(ANGLE_BINS as isize);
             let db = db.min(ANGLE_BINS as isize - db);
@@ -321,9 +345,6 @@ fn vote(
         });
         if !near {
             peaks.push(c);
-            if peaks.len() == PEAKS_PER_TEMPLATE {
-                break;
-            }
         }
     }
     let poses = peaks
@@ -350,10 +371,10 @@ fn vote(
             (Similarity { from: centroid, to, angle_rad: a * fine_step, scale }, v)
         })
         .collect();
-    for &k in &acc.touched {
+    for &k in &touched[..n_touched] {
         acc.cells[k as usize] = [0; 2];
     }
-    acc.touched.clear();
+    acc.touched = touched;
     acc.tall.clear();
     poses
 }
