@@ -751,16 +751,19 @@ impl Estimator {
         // own), or told from a sibling (which it must follow everywhere else, as closely as a clean
         // outline at this noise; see `estimate_part`).
         let sibling = m.rival.as_ref().is_some_and(|r| r.ties(&limits) && r.local.map(|l| l.follows()) == Some(Follows::Best));
-        if m.alone || sibling {
-            let near = if sibling {
-                self.clean_tolerance(seen.noise)
-            } else {
-                register::tight_tolerance(best.reg.rms, p.fit_tolerance, best.tolerance)
-            };
+        // The departure from the best template at the separation `near` gives, points where
+        // `excused` holds (given `apart`) not judged, the region's outline beyond the template's
+        // judged when `beyond`.
+        let departure = |near: f64, excused: &dyn Fn(Pt, f64) -> bool, beyond: bool| {
             let (apart, min_run) = differ::separation(near);
             let placed = differ::Placed { index: &e.index, pose, centroid: tpl.centroid };
             let light = differ::Light::new(seen.frame, seen.brighter, seen.contrast, seen.noise);
-            m.departure = differ::departure(seen.outline_index, placed, Some(&light), seen.excused, m.alone, apart, min_run);
+            differ::departure(seen.outline_index, placed, Some(&light), &|q| excused(q, apart), beyond, apart, min_run)
+        };
+        let tight = register::tight_tolerance(best.reg.rms, p.fit_tolerance, best.tolerance);
+        if m.alone || sibling {
+            let near = if sibling { self.clean_tolerance(seen.noise) } else { tight };
+            m.departure = departure(near, &|q, _| (seen.excused)(q), m.alone);
             // In a region with others, where the outline leaves the best template may be a
             // neighbour's doing as well as the part's: the region's outline is then no clean
             // view of the part. The departure counts as hidden, so that only what is seen
@@ -779,13 +782,9 @@ impl Estimator {
             // silhouette it may be under or against something else, and is not judged; nor is
             // the region's outline beyond the template's (it runs around whatever else lies
             // here).
-            let near = register::tight_tolerance(best.reg.rms, p.fit_tolerance, best.tolerance);
-            let (apart, min_run) = differ::separation(near);
-            let placed = differ::Placed { index: &e.index, pose, centroid: tpl.centroid };
-            let light = differ::Light::new(seen.frame, seen.brighter, seen.contrast, seen.noise);
             let region = geometry::Inside::new(seen.outline);
-            let covered = |q: Pt| (seen.excused)(q) || (region.contains(q) && !seen.outline_index.any_within(q, apart));
-            m.departure = differ::departure(seen.outline_index, placed, Some(&light), &covered, false, apart, min_run);
+            let covered = |q: Pt, apart: f64| (seen.excused)(q) || (region.contains(q) && !seen.outline_index.any_within(q, apart));
+            m.departure = departure(tight, &covered, false);
         }
         // The footprint is looked at only for a part nothing else rejects.
         if decide::failed(&m, &limits).is_none() {
