@@ -58,6 +58,18 @@ fn picked(parts: &[PartEstimate], t: &lfi_bridge::truth::TruthPart) {
     assert!(p.accepted && right(p, t), "the {} {}: {:?} {:?} {:.2}: {}", t.type_name, t.face, p.type_name, p.face, p.angle_deg, p.detail());
 }
 
+/// In scene `index` of the catalogue of `seed` (parts `names`, the unknown one first), the
+/// unknown part is rejected *unknown type* and the known one beside it is picked.
+fn unknown_beside_a_picked_part(seed: u64, index: u64, names: &[&str]) {
+    let _shared = common::MACHINE.blocking_read();
+    let (est, scene) = catalogue_scene(seed, index, names);
+    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+    picked(&fe.parts, &scene.truth.parts[1]);
+    let u = &scene.truth.parts[0];
+    let p = at(&fe.parts, u.x_px, u.y_px).expect("a result at the unknown part");
+    assert!(!p.accepted && p.reason == Reason::UnknownType, "{}", p.detail());
+}
+
 #[test]
 fn a_touching_pair_gives_both_parts() {
     let (sim, est) = setup(404);
@@ -377,13 +389,7 @@ fn an_unknown_part_alone_is_one_unknown_part() {
 /// has none, on open belt away from the T026 it touches. The T026 is picked.
 #[test]
 fn an_unknown_part_touching_a_known_one_is_a_type_not_enrolled() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(11, 35, &["U04", "T026"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    picked(&fe.parts, &scene.truth.parts[1]);
-    let u = &scene.truth.parts[0];
-    let p = at(&fe.parts, u.x_px, u.y_px).expect("a result at the unknown part");
-    assert!(!p.accepted && p.reason == Reason::UnknownType, "{}", p.detail());
+    unknown_beside_a_picked_part(11, 35, &["U04", "T026"]);
 }
 
 /// A region no template explains and that shows little of the closest one's outline is one
@@ -391,13 +397,7 @@ fn an_unknown_part_touching_a_known_one_is_a_type_not_enrolled() {
 /// seed 29, alone, a third larger than the T012 its signature is nearest).
 #[test]
 fn a_region_like_no_template_is_an_unknown_part_whatever_its_size() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(29, 8, &["U04", "T001"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    picked(&fe.parts, &scene.truth.parts[1]);
-    let u = &scene.truth.parts[0];
-    let p = at(&fe.parts, u.x_px, u.y_px).expect("a result at the unknown part");
-    assert!(!p.accepted && p.reason == Reason::UnknownType, "{}", p.detail());
+    unknown_beside_a_picked_part(29, 8, &["U04", "T001"]);
 }
 
 /// Where two faces of one outline tie in a region, what the image shows inside the part tells
