@@ -414,6 +414,21 @@ fn two_faces_of_one_outline_against_a_neighbour_are_told_by_what_lies_inside() {
     }
 }
 
+/// Where a revision differs from its parent by a notch whose back lies in shadow, the region's
+/// coarse outline can run along the shadow's rim, too far from the part's edge for the
+/// refinement to find it: the outline bridges the notch with a chord. The notch is then judged
+/// by the frame's light, as against a neighbour. The scene: T004 of the catalogue of seed 29
+/// (T002 plus a notch and a boss) touching a T022; it was rejected *ambiguous* against T002.
+#[test]
+fn a_notch_the_regions_outline_bridges_is_told_by_the_light() {
+    let _shared = common::MACHINE.blocking_read();
+    let (est, scene) = catalogue_scene(29, 86, &["T004", "T022"]);
+    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+    for t in &scene.truth.parts {
+        picked(&fe.parts, t);
+    }
+}
+
 /// A catalogue with a small type decimates finer than the configured factor, but a frame is
 /// first looked at as coarsely as configured: that look stands only where each region is one
 /// part accepted as a type large enough for it. A region of several parts, a reject or a small

@@ -221,7 +221,7 @@ impl fmt::Display for Verdict {
                         l.rival_len
                     )
                     .and_then(|()| match l.hidden_len > 0.0 {
-                        true => write!(f, " ({:.0} px more are hidden by a neighbour)", l.hidden_len),
+                        true => write!(f, " ({:.0} px more are hidden: against a neighbour, or where no edge was found)", l.hidden_len),
                         false => Ok(()),
                     }),
                     None => Ok(()),
@@ -387,7 +387,8 @@ pub struct Local {
     pub rival_len: f64,
     /// The fraction of it the part's outline lies on.
     pub rival_follows: f64,
-    /// Length of the stretches where they differ that a neighbouring part hides in part, px.
+    /// Length of the stretches where they differ that are hidden in part (a neighbouring part
+    /// against them, or the region's outline bridging where no edge was found), px.
     pub hidden_len: f64,
     /// How far the outlines must be to count as apart, px.
     pub apart: f64,

@@ -816,6 +816,19 @@ impl Estimator {
         };
         let tpl = &self.lib.entries[other.entry].template;
         let light = differ::Light::new(seen.frame, seen.brighter, seen.contrast, seen.noise);
+        // Where the refinement found no edge near the coarse outline it bridged the stretch
+        // with a chord (see [`boundary::refine`]): the part's edge lies farther than the search
+        // from it, as at the back of a notch whose shadow the coarse edges followed. There the
+        // region's outline tells nothing, as against a neighbour; the frame's light may.
+        let search = self.params.refine_params(seen.coarse.factor).search;
+        let gaps: Vec<(Pt, Pt)> = seen
+            .outline
+            .iter()
+            .zip(seen.outline.iter().cycle().skip(1))
+            .filter(|(a, b)| (**b - **a).norm() > search)
+            .map(|(a, b)| (*a, *b))
+            .collect();
+        let unseen = |q: Pt| (seen.excused)(q) || gaps.iter().any(|&(a, b)| geometry::point_segment(q, a, b).0 < 2.0 * search);
         let mut rival = Rival {
             name: named(tpl),
             fit: coverage(other.entry, other.reg.pose),
@@ -823,7 +836,7 @@ impl Estimator {
             tolerance: tight,
             support: Some((other.support, best.support)),
             confidence: if segments.is_empty() { 0.0 } else { confidence(&tpl.segments, segments, &other.reg.pose, diag, lambda) },
-            local: Some(differ::compare(seen.outline_index, placed(best), placed(other), seen.excused, Some(&light), tight)),
+            local: Some(differ::compare(seen.outline_index, placed(best), placed(other), &unseen, Some(&light), tight)),
             features: None,
         };
         // Where the outlines do not tell the two apart (two faces of one outline), what the
