@@ -429,6 +429,22 @@ fn a_notch_the_regions_outline_bridges_is_told_by_the_light() {
     }
 }
 
+/// The upper part of an overlap may be found first as another type that fits its material (and
+/// does not reach the lower part), the right one among its rivals. That rival's outline across
+/// the lower part shows it on top: it counts as seen in its support, as a kept part's would, so
+/// that the part is not taken for something unknown lying on it. The scene: a T020 of the
+/// catalogue of seed 41 lying across the end of a T032, kept as a T014; it was rejected
+/// *touching/overlapping*, its outline explained 0.90.
+#[test]
+fn an_upper_part_found_among_rivals_is_seen_across_the_lower_one() {
+    let _shared = common::MACHINE.blocking_read();
+    let (est, scene) = catalogue_scene(41, 60, &["T032", "T020"]);
+    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+    picked(&fe.parts, &scene.truth.parts[1]);
+    let under = &scene.truth.parts[0];
+    assert!(at(&fe.parts, under.x_px, under.y_px).is_some_and(|p| !p.accepted), "the covered T032 is not accepted");
+}
+
 /// A catalogue with a small type decimates finer than the configured factor, but a frame is
 /// first looked at as coarsely as configured: that look stands only where each region is one
 /// part accepted as a type large enough for it. A region of several parts, a reject or a small

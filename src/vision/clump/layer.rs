@@ -105,7 +105,9 @@ pub(super) fn order(
     // part: which of the two explanations is the part is decided later (where their templates
     // differ), and the one kept may not reach the second part at all (two lugs of a three-lug
     // flange whose third lies on a link). Something may lie on the second part: which lies on
-    // top is unclear for it.
+    // top is unclear for it; should the part be that explanation, its outline across the second
+    // part counts as seen, as a kept part's does.
+    let mut lifted = Vec::new();
     for &(owner, r) in rivals {
         for &k in keep {
             if k == owner || found[k].under.is_some() || found[k].order_unclear || inside(&found[r].points, &deep[k]).len() < 4 {
@@ -114,17 +116,28 @@ pub(super) fn order(
             let p = measure(found, r, k);
             if lies_on_top(p.si, p.sk, p.fi, p.fk, p.enough, m) {
                 found[k].order_unclear = true;
+                over[r].extend(p.ii);
+                lifted.push((owner, r));
             }
         }
     }
     // An upper part's outline across a lower part shows as well as that part's surface allows:
     // decided on top, those points count as seen.
-    for &i in keep {
+    for i in keep.iter().copied().chain(lifted.iter().map(|&(_, r)| r)) {
         let pts = &mut found[i].points;
         for &j in &over[i] {
             pts[j].seen = true;
         }
         found[i].support = pts.iter().filter(|p| p.seen).count() as f64 / pts.len().max(1) as f64;
+    }
+    // The owner's list of rivals carries each one's support, best first.
+    for (owner, r) in lifted {
+        let (entry, support) = (found[r].entry, found[r].support);
+        let list = &mut found[owner].rivals;
+        for o in list.iter_mut().filter(|o| o.0 == entry) {
+            o.2 = support;
+        }
+        list.sort_by(|a, b| b.2.total_cmp(&a.2));
     }
 }
 
