@@ -58,6 +58,16 @@ fn picked(parts: &[PartEstimate], t: &lfi_bridge::truth::TruthPart) {
     assert!(p.accepted && right(p, t), "the {} {}: {:?} {:?} {:.2}: {}", t.type_name, t.face, p.type_name, p.face, p.angle_deg, p.detail());
 }
 
+/// In scene `index` of the catalogue of `seed` (parts `names`), every part is picked.
+fn every_part_picked(seed: u64, index: u64, names: &[&str]) {
+    let _shared = common::MACHINE.blocking_read();
+    let (est, scene) = catalogue_scene(seed, index, names);
+    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+    for t in &scene.truth.parts {
+        picked(&fe.parts, t);
+    }
+}
+
 /// In scene `index` of the catalogue of `seed` (parts `names`, the unknown one first), the
 /// unknown part is rejected *unknown type* and the known one beside it is picked.
 fn unknown_beside_a_picked_part(seed: u64, index: u64, names: &[&str]) {
@@ -406,12 +416,7 @@ fn a_region_like_no_template_is_an_unknown_part_whatever_its_size() {
 /// face-down pockets show, and it was rejected *ambiguous*.
 #[test]
 fn two_faces_of_one_outline_against_a_neighbour_are_told_by_what_lies_inside() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(53, 59, &["T018", "T019"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    for t in &scene.truth.parts {
-        picked(&fe.parts, t);
-    }
+    every_part_picked(53, 59, &["T018", "T019"]);
 }
 
 /// Where a revision differs from its parent by a notch whose back lies in shadow, the region's
@@ -421,12 +426,7 @@ fn two_faces_of_one_outline_against_a_neighbour_are_told_by_what_lies_inside() {
 /// (T002 plus a notch and a boss) touching a T022; it was rejected *ambiguous* against T002.
 #[test]
 fn a_notch_the_regions_outline_bridges_is_told_by_the_light() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(29, 86, &["T004", "T022"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    for t in &scene.truth.parts {
-        picked(&fe.parts, t);
-    }
+    every_part_picked(29, 86, &["T004", "T022"]);
 }
 
 /// The upper part of an overlap may be found first as another type that fits its material (and

@@ -323,6 +323,20 @@ struct Seen<'a> {
     /// Frame points where the part's own outline is not seen (against or under another part
     /// found in the region): nothing is judged there.
     excused: &'a (dyn Fn(Pt) -> bool + Sync),
+    /// Where the refinement found no edge near the coarse outline and bridged the stretch with
+    /// a chord (see [`boundary::refine`]): the chords (longer than the refinement's `search`)
+    /// and that search, frame pixels. The part's edge lies farther than the search from them,
+    /// as at the back of a notch whose shadow the coarse edges followed.
+    bridged: &'a [(Pt, Pt)],
+    search: f64,
+}
+
+impl Seen<'_> {
+    /// Whether the region's outline tells nothing at `q`: against or under another part found
+    /// here, or within twice the search of a chord the refinement bridged.
+    fn unseen(&self, q: Pt) -> bool {
+        (self.excused)(q) || self.bridged.iter().any(|&(a, b)| geometry::point_segment(q, a, b).0 < 2.0 * self.search)
+    }
 }
 
 /// One template explaining a part found in a region: its registration, the image's support for
@@ -592,6 +606,14 @@ impl Estimator {
             None => lines::part_segments(p.line_detector, &coarse.small, &coarse.edges, coarse.factor, blob, self.least_segment())?,
         };
         let outline_index = OutlineIndex::of_frame(&whole.outline);
+        let search = p.refine_params(coarse.factor).search;
+        let bridged: Vec<(Pt, Pt)> = whole
+            .outline
+            .iter()
+            .zip(whole.outline.iter().cycle().skip(1))
+            .filter(|(a, b)| (**b - **a).norm() > search)
+            .map(|(a, b)| (*a, *b))
+            .collect();
         let seen = Seen {
             frame,
             coarse,
@@ -602,6 +624,8 @@ impl Estimator {
             contrast,
             brighter: looked.brighter,
             excused: &|_| false,
+            bridged: &bridged,
+            search,
         };
         let (out, debris) = self.region_parts(&seen, &ex);
         #[cfg(debug_assertions)]
@@ -816,19 +840,9 @@ impl Estimator {
         };
         let tpl = &self.lib.entries[other.entry].template;
         let light = differ::Light::new(seen.frame, seen.brighter, seen.contrast, seen.noise);
-        // Where the refinement found no edge near the coarse outline it bridged the stretch
-        // with a chord (see [`boundary::refine`]): the part's edge lies farther than the search
-        // from it, as at the back of a notch whose shadow the coarse edges followed. There the
-        // region's outline tells nothing, as against a neighbour; the frame's light may.
-        let search = self.params.refine_params(seen.coarse.factor).search;
-        let gaps: Vec<(Pt, Pt)> = seen
-            .outline
-            .iter()
-            .zip(seen.outline.iter().cycle().skip(1))
-            .filter(|(a, b)| (**b - **a).norm() > search)
-            .map(|(a, b)| (*a, *b))
-            .collect();
-        let unseen = |q: Pt| (seen.excused)(q) || gaps.iter().any(|&(a, b)| geometry::point_segment(q, a, b).0 < 2.0 * search);
+        // Where the region's outline tells nothing (a neighbour, a bridged chord), the frame's
+        // light may.
+        let unseen = |q: Pt| seen.unseen(q);
         let mut rival = Rival {
             name: named(tpl),
             fit: coverage(other.entry, other.reg.pose),
