@@ -469,3 +469,29 @@ fn a_frame_of_large_parts_is_settled_by_the_first_coarse_look() {
     let finer = looks.keys().filter(|&&f| f < configured).count();
     assert!(looks.get(&configured).is_some_and(|&n| n > 0) && finer == 1, "frames by decimation: {looks:?}");
 }
+
+/// An unknown fork whose arms are longer than a known fork's (U02 of the catalogue of seed 13
+/// against T011) fits no template as one part; the region search found the known fork alone
+/// in it, its fit loosened by the longer arms, and a separation widened with that fit hid
+/// them: it was accepted as T011. Alone, a part must follow its template as closely as a clean
+/// outline at the frame's noise does: the arms depart, a type not enrolled. The T031 beside it
+/// is picked.
+#[test]
+fn an_unknown_fork_with_longer_arms_is_not_the_known_fork() {
+    unknown_beside_a_picked_part(13, 53, &["U02", "T031"]);
+}
+
+/// A revision with a second round notch beside its parent's (U03 of the catalogue of seed 83,
+/// T012 plus a notch 5.2 mm deep, cut deeper than its radius): the part's outline lies inside
+/// the template along the notch's walls, whose nearest template outline is the edge beside
+/// the mouth, where the frame shows the part's step; judged there, the notch was taken for the
+/// outline gone astray and the part accepted as T012. Judged across the mouth it is a type not
+/// enrolled.
+#[test]
+fn a_second_notch_beside_the_parents_is_a_type_not_enrolled() {
+    let _shared = common::MACHINE.blocking_read();
+    let (est, scene) = catalogue_scene(83, 44, &["U03"]);
+    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+    let stories: Vec<String> = fe.parts.iter().map(|p| p.detail()).collect();
+    assert!(fe.parts.len() == 1 && fe.parts[0].reason == Reason::UnknownType, "{stories:#?}");
+}

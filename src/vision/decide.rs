@@ -438,6 +438,14 @@ impl Departure {
     }
 }
 
+/// Of the places where a part departs from its template ([`super::differ::departures`]), the one
+/// its decision reads: the longest that makes it a type not enrolled ([`Departure::counts`]),
+/// else the longest. A placement a little off runs shallow beside the part's outline for long
+/// stretches; a lug beside them is shorter and is what tells.
+pub fn telling(found: Vec<Departure>, l: &Limits) -> Option<Departure> {
+    found.into_iter().max_by(|a, b| a.counts(l).cmp(&b.counts(l)).then(a.len.total_cmp(&b.len)))
+}
+
 /// Which template the part follows where two differ.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Follows {

@@ -240,10 +240,11 @@ impl<'a> Light<'a> {
     }
 }
 
-/// Where a part departs from its best template (placed on it) by more than `apart`: the longest
-/// run of the template's outline with none of the part's near it (material the part lacks) or of
+/// Where a part departs from its best template (placed on it) by more than `apart`: every run
+/// of the template's outline with none of the part's near it (material the part lacks) or of
 /// the part's outline with none of the template's near it (material the template lacks), at
-/// least `min_run` long; None when there is none.
+/// least `min_run` long, that the judgement below keeps; [`super::decide::telling`] says which
+/// one tells (a long shallow run of a loose placement must not hide a deep lug beside it).
 ///
 /// Judged by `light` where the frame can tell: a place where the part's outline strays from the
 /// template's while the frame still shows the part's edge along the template's outline (a dark
@@ -257,7 +258,7 @@ impl<'a> Light<'a> {
 /// the outline, unlike what it claims: belt where the part has less material, the part's own
 /// where it has more (a stain against a shaded edge is neither), unless the part's edge shows
 /// along nearly all of the part's own outline there (a boss whose dark bore the strip crosses).
-pub fn departure(
+pub fn departures(
     part: &OutlineIndex,
     tpl: Placed<'_>,
     light: Option<&Light<'_>>,
@@ -265,7 +266,7 @@ pub fn departure(
     beyond: bool,
     apart: f64,
     min_run: f64,
-) -> Option<Departure> {
+) -> Vec<Departure> {
     let to_tpl = tpl.pose.inverse();
     let reach = apart / tpl.pose.scale;
     let tpl_pts = tpl.index.outline();
@@ -297,6 +298,14 @@ pub fn departure(
         let outline: &[Pt] = if lacks { &placed } else { own };
         let depth = |q: Pt| if lacks { depth_missing(q) } else { depth_extra(q) };
         let other = |q: Pt| if lacks { other_missing(q) } else { other_extra(q) };
+        // The other outline's nearest point: beyond the index's reach, searched for point by
+        // point (few points, and only for departures deeper than the reach).
+        let far = |q: Pt| {
+            let pts: Box<dyn Iterator<Item = Pt>> =
+                if lacks { Box::new(own.iter().copied()) } else { Box::new(tpl_pts.iter().map(|&t| tpl.pose.apply(t))) };
+            pts.min_by(|a, b| (*a - q).norm().total_cmp(&(*b - q).norm()))
+        };
+        let nearest_other = |q: Pt| other(q).or_else(|| far(q));
         // Less material than the template there: the part's outline runs inside the template's,
         // or the template's runs outside the part's.
         let less = run
@@ -316,7 +325,7 @@ pub fn departure(
         // stain against the part or a crevice the outline ran into looks like neither claims.
         if let (Some(l), Some((belt, body))) = (light, levels) {
             let mut between: Vec<f64> =
-                run.points.iter().filter_map(|&i| other(outline[i]).map(|o| l.at((outline[i] + o).scale(0.5)))).collect();
+                run.points.iter().filter_map(|&i| nearest_other(outline[i]).map(|o| l.at((outline[i] + o).scale(0.5)))).collect();
             if !between.is_empty() {
                 let mid = between.len() / 2;
                 let m = *between.select_nth_unstable_by(mid, f64::total_cmp).1;
@@ -334,15 +343,10 @@ pub fn departure(
         let depth_max = run.points.iter().map(|&i| depth(outline[i])).fold(0.0, f64::max);
         // Wide as well as deep: the area between the two outlines over its depth. A run into a
         // slit the outline entered further than the template's is long and deep but narrow.
-        // Beyond the index's reach, the other outline's nearest point is searched for point by
-        // point (few points, and only for departures deeper than the reach).
-        let far = |q: Pt| {
-            let pts: Box<dyn Iterator<Item = Pt>> =
-                if lacks { Box::new(own.iter().copied()) } else { Box::new(tpl_pts.iter().map(|&t| tpl.pose.apply(t))) };
-            pts.min_by(|a, b| (*a - q).norm().total_cmp(&(*b - q).norm()))
-        };
+        // Beyond the index's reach the other outline's nearest point is the one searched for
+        // (see `far`).
         let mut poly: Vec<Pt> = run.points.iter().map(|&i| outline[i]).collect();
-        poly.extend(run.points.iter().rev().filter_map(|&i| other(outline[i]).or_else(|| far(outline[i]))));
+        poly.extend(run.points.iter().rev().filter_map(|&i| nearest_other(outline[i])));
         let width = super::geometry::area_centroid(&poly).0.abs() / depth_max.max(1e-9);
         // The template's own outline where it faces itself across a narrow gap of belt (a
         // crevice between a boss and an arm): how deep an outline runs into it is the light's
@@ -358,15 +362,14 @@ pub fn departure(
         if (crevice as f64) > CREVICE_SHARE * run.points.len() as f64 {
             return None;
         }
-        // Where the part lacks material, the belt shows on both sides of the template's outline
-        // across the notch's mouth: a step there (the shaded rim of a part lit from above, which
-        // the outline stopped short of, following the lit face) is the part's edge seen
-        // otherwise. Measured where the departure is deep (at least half its depth), away
-        // from the notch's ends, where the window across the template's outline still holds
-        // the part's walls.
-        if less_material && let (Some(l), Some((belt, body))) = (light, levels) {
-            let mut steps: Vec<f64> = run
-                .points
+        // Where the part lacks material, the template's outline runs across the notch's mouth,
+        // apart from the part's: looked for where the departure is deep (at least half its
+        // depth), away from the notch's ends. Where the template's outline is on the part's all
+        // along (the run's nearest template points all lie on the part's edge), the part lacks
+        // nothing the template has: its outline entered the body (a dark pocket it followed in
+        // and out), no notch.
+        let mouth: Vec<(usize, Pt)> = if less_material {
+            run.points
                 .iter()
                 .filter(|&&i| depth(outline[i]) >= 0.5 * depth_max)
                 .filter_map(|&i| {
@@ -379,15 +382,46 @@ pub fn departure(
                             Some((j, tpl_pts[j]))
                         })?
                     };
-                    Some(l.step(tpl.pose.apply(foot), outward(tpl, j), 0.5 * apart))
+                    let at = tpl.pose.apply(foot);
+                    (!part.any_within(at, apart)).then_some((j, at))
                 })
-                .collect();
+                .collect()
+        } else {
+            Vec::new()
+        };
+        if less_material && mouth.is_empty() {
+            return None;
+        }
+        // The belt shows on both sides of the template's outline across a notch's mouth: a
+        // step there (the shaded rim of a part lit from above, which the outline stopped short
+        // of, following the lit face) is the part's edge seen otherwise. Measured across the
+        // mouth only, where the window across the template's outline holds no wall of the part
+        // (the walls of a round notch lie nearest its mouth's corners, where the template runs
+        // on the part's own edge and shows its step).
+        if let (Some(l), Some((belt, body))) = (light, levels) {
+            let mut steps: Vec<f64> = mouth.iter().map(|&(j, at)| l.step(at, outward(tpl, j), 0.5 * apart)).collect();
             if !steps.is_empty() {
                 let mid = steps.len() / 2;
                 let step = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
                 if step.abs() > STEP_SHARE * (body - belt).abs() {
                     return None;
                 }
+            }
+        }
+        // Where the part has more material, its own outline there is an edge of the part: the
+        // frame shows the step from part to belt along most of it. An outline that ran around a
+        // faint stain or a patch of noise on the belt beside the part shows no such step.
+        if !less_material && let Some(l) = light {
+            let edges: Vec<bool> = run
+                .points
+                .iter()
+                .filter_map(|&i| {
+                    let k = if lacks { part.nearest(outline[i], MAX_REACH).map(|(k, _, _)| k)? } else { i };
+                    Some(l.shows(own[k], part.normal(k), 0.5 * apart))
+                })
+                .collect();
+            if 2 * edges.iter().filter(|&&e| e).count() < edges.len() {
+                return None;
             }
         }
         let mid = outline[run.points[run.points.len() / 2]];
@@ -404,7 +438,7 @@ pub fn departure(
     };
     let all =
         runs(&placed, &missing, min_run).into_iter().map(|r| (r, true)).chain(runs(own, &extra, min_run).into_iter().map(|r| (r, false)));
-    all.filter_map(|(r, lacks)| judged(r, lacks)).max_by(|a, b| a.len.total_cmp(&b.len))
+    all.filter_map(|(r, lacks)| judged(r, lacks)).collect()
 }
 
 /// The template's outward unit normal at its point `i`, in the frame.
@@ -528,6 +562,19 @@ mod tests {
     use super::*;
     use crate::vision::decide::Follows;
 
+    /// The longest departure [`departures`] finds (these plates have one place that departs).
+    fn longest(
+        part: &OutlineIndex,
+        tpl: Placed<'_>,
+        light: Option<&Light<'_>>,
+        excused: &dyn Fn(Pt) -> bool,
+        beyond: bool,
+        apart: f64,
+        min_run: f64,
+    ) -> Option<Departure> {
+        departures(part, tpl, light, excused, beyond, apart, min_run).into_iter().max_by(|a, b| a.len.total_cmp(&b.len))
+    }
+
     /// A 200 x 100 plate (template pixels, corners at 0,0 and 200,100), with a lug `lug` px
     /// proud on its top edge between x 80 and 120 (a notch when `lug` < 0), sampled every 2 px.
     fn plate(lug: f64) -> Vec<Pt> {
@@ -632,15 +679,15 @@ mod tests {
         let without = OutlineIndex::new(&plate(0.0));
         let at = pose(600.0, 400.0, -52.0);
         let frame = |t: &[Pt]| OutlineIndex::of_frame(&t.iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
-        assert_eq!(departure(&frame(&plate(0.0)), placed(&without, at), None, &|_| false, true, 6.0, 12.0), None);
+        assert_eq!(longest(&frame(&plate(0.0)), placed(&without, at), None, &|_| false, true, 6.0, 12.0), None);
         for lug in [20.0, -20.0] {
-            let d = departure(&frame(&plate(lug)), placed(&without, at), None, &|_| false, true, 6.0, 12.0).expect("a departure");
+            let d = longest(&frame(&plate(lug)), placed(&without, at), None, &|_| false, true, 6.0, 12.0).expect("a departure");
             assert!((d.depth - 20.0).abs() < 1.5, "{lug}: {d:?}");
             assert!(d.len > 25.0 && d.len < 70.0, "{lug}: {d:?}");
             assert!((d.at_deg - 270.0).abs() < 20.0, "{lug}: {d:?}");
         }
         // Shallower than the separation that counts as apart: none.
-        assert_eq!(departure(&frame(&plate(4.0)), placed(&without, at), None, &|_| false, true, 6.0, 12.0), None);
+        assert_eq!(longest(&frame(&plate(4.0)), placed(&without, at), None, &|_| false, true, 6.0, 12.0), None);
     }
 
     /// Enrolment's report: a plate and its revision with a lug are alike and told apart at the
@@ -700,7 +747,7 @@ mod tests {
         for (notch, departs) in [(true, true), (false, false)] {
             let img = image(notch);
             let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
-            let d = departure(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
+            let d = longest(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
             assert_eq!(d.is_some(), departs, "notch in the image {notch}: {d:?}");
             if let Some(d) = d {
                 assert!(d.less_material, "{d:?}");
@@ -739,7 +786,7 @@ mod tests {
         for (lug, departs) in [(180, true), (70, false)] {
             let img = image(lug);
             let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
-            let d = departure(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
+            let d = longest(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
             assert_eq!(d.is_some(), departs, "lug at gray {lug}: {d:?}");
             if let Some(d) = d {
                 assert!(!d.less_material && !d.part_lacks, "{d:?}");
@@ -787,7 +834,7 @@ mod tests {
         for (boss, departs) in [(180, true), (70, false)] {
             let img = image(boss);
             let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
-            let d = departure(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
+            let d = longest(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
             assert_eq!(d.is_some(), departs, "boss at gray {boss}: {d:?}");
             if let Some(d) = d {
                 assert!(!d.less_material && !d.part_lacks && d.depth > 20.0, "{d:?}");
@@ -818,7 +865,7 @@ mod tests {
         for (band, departs) in [(50, true), (75, false)] {
             let img = image(band);
             let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
-            let d = departure(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
+            let d = longest(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
             assert_eq!(d.is_some(), departs, "notch at gray {band}: {d:?}");
             if let Some(d) = d {
                 assert!(d.less_material && d.width > 30.0, "{d:?}");
@@ -828,8 +875,9 @@ mod tests {
 
     /// An outline that runs further into a crevice of the template (a slit between a boss and
     /// an arm) than the template's does departs deep and long, but along walls that face each
-    /// other across a little belt: not judged. The same outline against a template without the
-    /// crevice departs (narrow: the ladder's width test is what then lets it pass).
+    /// other across a little belt: not judged. Against a template without the crevice, the
+    /// slit's mouth is narrower than twice the separation: the template's outline across it
+    /// lies on the part's all along, and the part lacks nothing there at this separation.
     #[test]
     fn an_outline_deeper_in_a_crevice_of_the_template_is_not_a_departure() {
         let slit = |depth: f64| {
@@ -848,9 +896,112 @@ mod tests {
         let at = pose(600.0, 400.0, 21.0);
         let part = OutlineIndex::of_frame(&slit(40.0).iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
         let with = OutlineIndex::new(&slit(8.0));
-        assert_eq!(departure(&part, placed(&with, at), None, &|_| false, true, 6.0, 12.0), None);
+        assert_eq!(longest(&part, placed(&with, at), None, &|_| false, true, 6.0, 12.0), None);
         let without = OutlineIndex::new(&plate(0.0));
-        let d = departure(&part, placed(&without, at), None, &|_| false, true, 6.0, 12.0).expect("a departure");
-        assert!(d.depth >= 20.0 && d.width < 18.0, "{d:?}");
+        assert_eq!(longest(&part, placed(&without, at), None, &|_| false, true, 6.0, 12.0), None);
+    }
+
+    /// The plate's outline (template pixels) with `cut` spliced into its top edge between x 80
+    /// and 120 (the points of `cut` run from the first corner to the second), sampled every 2 px.
+    fn plate_with(cut: &[Pt]) -> Vec<Pt> {
+        let mut corners = vec![Pt::new(0.0, 0.0), Pt::new(80.0, 0.0)];
+        corners.extend_from_slice(cut);
+        corners.extend([Pt::new(120.0, 0.0), Pt::new(200.0, 0.0), Pt::new(200.0, 100.0), Pt::new(0.0, 100.0)]);
+        crate::vision::geometry::resample_closed(&corners, 2.0)
+    }
+
+    /// The plate at `pose(200, 150, 0)` (frame x 100..300, y 100..200) drawn at 180 on a belt
+    /// of 50, each pixel then as `paint` says (given x, y and the plate's own gray).
+    fn drawn(paint: impl Fn(usize, usize, u8) -> u8) -> crate::vision::frame::GrayImage {
+        let (w, h) = (400, 300);
+        let mut img = crate::vision::frame::GrayImage::new(w, h, 50);
+        for y in 0..h {
+            for x in 0..w {
+                let plate = (100..200).contains(&y) && (100..300).contains(&x);
+                img.data[y * w + x] = paint(x, y, if plate { 180 } else { 50 });
+            }
+        }
+        img
+    }
+
+    /// A round notch cut deeper than its radius (its mouth narrower than its width): the walls
+    /// below the mouth lie nearest the mouth's corners, where the template runs on the part's
+    /// own edge and the frame steps from part to belt. Across the mouth itself the belt lies on
+    /// both sides of the template's outline: the notch is the part's, a departure.
+    #[test]
+    fn a_round_notch_is_judged_across_its_mouth() {
+        let at = pose(200.0, 150.0, 0.0);
+        // A circle of radius 20 about (100, 12): the mouth spans x 84..116 on the top edge.
+        let (c, r) = (Pt::new(100.0, 12.0), 20.0f64);
+        // From the mouth's left corner round through the bottom (y deepest at angle 90 deg)
+        // to its right corner.
+        let (from, to) = (std::f64::consts::PI + (12.0 / r).asin(), -(12.0 / r).asin());
+        let arc: Vec<Pt> = (0..=40)
+            .map(|k| {
+                let a = from + (to - from) * k as f64 / 40.0;
+                c + Pt::new(a.cos(), a.sin()).scale(r)
+            })
+            .collect();
+        let mut cut = vec![Pt::new(84.0, 0.0)];
+        cut.extend(arc.iter().copied().filter(|q| q.y > 0.0));
+        cut.push(Pt::new(116.0, 0.0));
+        let notched = plate_with(&cut);
+        let inside = |q: Pt| crate::vision::geometry::contains(&notched, q);
+        let img = drawn(|x, y, g| if inside(at.inverse().apply(Pt::new(x as f64 + 0.5, y as f64 + 0.5))) { 180 } else { g.min(50) });
+        let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
+        let part = OutlineIndex::of_frame(&notched.iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
+        let without = OutlineIndex::new(&plate(0.0));
+        let found = departures(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
+        let d = found.iter().max_by(|a, b| a.depth.total_cmp(&b.depth)).expect("a departure");
+        assert!(d.less_material && d.depth >= d.reach && d.width >= 18.0, "{found:?}");
+    }
+
+    /// An outline that follows a dark pocket into the part's body and out again, while along
+    /// the template's outline above it the part's own outline runs too: the part lacks nothing
+    /// the template has (its nearest template outline lies on the part's edge all along), so
+    /// however dark the pocket, it is no notch.
+    #[test]
+    fn an_outline_into_a_dark_pocket_lacks_nothing() {
+        let at = pose(200.0, 150.0, 0.0);
+        // In from the top edge at x 80..84 down to y 30, along to x 160, back at y 36 to x 84
+        // (template pixels): a channel the outline ran, the top edge around it intact.
+        let channel = [Pt::new(80.0, 30.0), Pt::new(160.0, 30.0), Pt::new(160.0, 36.0), Pt::new(84.0, 36.0), Pt::new(84.0, 0.0)];
+        let mut corners = vec![Pt::new(0.0, 0.0), Pt::new(80.0, 0.0)];
+        corners.extend(channel);
+        corners.extend([Pt::new(200.0, 0.0), Pt::new(200.0, 100.0), Pt::new(0.0, 100.0)]);
+        let outline = crate::vision::geometry::resample_closed(&corners, 2.0);
+        let part = OutlineIndex::of_frame(&outline.iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
+        // The pocket: dark from 4 px under the top edge to the channel's floor.
+        let img = drawn(|x, y, g| if (180..262).contains(&x) && (104..137).contains(&y) { 50 } else { g });
+        let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
+        let without = OutlineIndex::new(&plate(0.0));
+        let found = departures(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
+        assert!(found.iter().all(|d| d.depth < 12.0), "{found:?}");
+    }
+
+    /// Material the template lacks is the part's: its own outline there is an edge the frame
+    /// shows. An outline run out around a stain that brightens toward the part (its middle as
+    /// bright as the part, its rim a faint step from the belt) is not; a lug is.
+    #[test]
+    fn more_material_shows_the_parts_edge() {
+        let at = pose(200.0, 150.0, 0.0);
+        let part = OutlineIndex::of_frame(&plate(20.0).iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
+        let without = OutlineIndex::new(&plate(0.0));
+        for (stain, departs) in [(false, true), (true, false)] {
+            // Frame x 180..220, y 80..100: the lug, or a stain ramping from the belt's gray at
+            // y 80 to the part's by y 92.
+            let img = drawn(|x, y, g| {
+                if (180..220).contains(&x) && (80..100).contains(&y) {
+                    if stain { (50.0 + 10.8 * (y as f64 - 80.0)).min(180.0) as u8 } else { 180 }
+                } else {
+                    g
+                }
+            });
+            let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
+            let found = departures(&part, placed(&without, at), Some(&light), &|_| false, true, 6.0, 12.0);
+            // Deep and wide as the ladder's limits (2 and 3 times the separation) want.
+            let counts = found.iter().any(|d| d.depth >= 12.0 && d.width >= 18.0);
+            assert_eq!(counts, departs, "a stain {stain}: {found:?}");
+        }
     }
 }

@@ -772,8 +772,10 @@ impl Estimator {
             ..Measured::default()
         };
         // Where it departs from its template: alone in its region (its outline is the part's
-        // own), or told from a sibling (which it must follow everywhere else, as closely as a clean
-        // outline at this noise; see `estimate_part`).
+        // own), or told from a sibling (which it must follow everywhere else). Either way as
+        // closely as a clean outline at this noise follows its template (see `estimate_part`),
+        // not within the region fit's own residual: an unknown fork whose arms are longer than
+        // the known one's loosens that fit, and a separation widened with it hides the arms.
         let sibling = m.rival.as_ref().is_some_and(|r| r.ties(&limits) && r.local.map(|l| l.follows()) == Some(Follows::Best));
         // The departure from the best template at the separation `near` gives, points where
         // `excused` holds (given `apart`) not judged, the region's outline beyond the template's
@@ -782,11 +784,14 @@ impl Estimator {
             let (apart, min_run) = differ::separation(near);
             let placed = differ::Placed { index: &e.index, pose, centroid: tpl.centroid };
             let light = differ::Light::new(seen.frame, seen.brighter, seen.contrast, seen.noise);
-            differ::departure(seen.outline_index, placed, Some(&light), &|q| excused(q, apart), beyond, apart, min_run)
+            decide::telling(
+                differ::departures(seen.outline_index, placed, Some(&light), &|q| excused(q, apart), beyond, apart, min_run),
+                &limits,
+            )
         };
         let tight = register::tight_tolerance(best.reg.rms, p.fit_tolerance, best.tolerance);
         if m.alone || sibling {
-            let near = if sibling { self.clean_tolerance(seen.noise) } else { tight };
+            let near = self.clean_tolerance(seen.noise);
             m.departure = departure(near, &|q, _| (seen.excused)(q), m.alone);
             // In a region with others, where the outline leaves the best template may be a
             // neighbour's doing as well as the part's: the region's outline is then no clean
@@ -959,7 +964,8 @@ impl Estimator {
         if best.tolerance > apart || unexplained >= 0.5 * min_run {
             let placed = differ::Placed { index: &self.lib.entries[best.entry].index, pose, centroid: tpl.centroid };
             let light = differ::Light::new(frame, brighter, contrast, noise);
-            m.departure = differ::departure(&OutlineIndex::of_frame(&outline), placed, Some(&light), &|_| false, true, apart, min_run);
+            let found = differ::departures(&OutlineIndex::of_frame(&outline), placed, Some(&light), &|_| false, true, apart, min_run);
+            m.departure = decide::telling(found, &limits);
         }
 
         // The line features at the pose.

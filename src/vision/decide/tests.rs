@@ -702,3 +702,25 @@ fn features_inside_against_the_best_outweigh_its_confidence_lead() {
     assert_eq!(d.verdict.reason(), Reason::Ambiguous);
     assert!(d.verdict.to_string().contains("the features inside show its own"), "{}", d.verdict);
 }
+
+/// Of several places where a part departs, the decision reads one that makes it a type not
+/// enrolled, however much longer a shallow run beside it (a placement a little off along a
+/// long arm) is; with none that counts, the longest.
+#[test]
+fn the_departure_that_counts_is_the_one_told() {
+    let d = |len: f64, depth: f64, width: f64| Departure {
+        len,
+        width,
+        depth,
+        apart: 6.0,
+        reach: 24.0,
+        at_deg: len,
+        part_lacks: false,
+        less_material: false,
+    };
+    let (shallow, lug, narrow) = (d(300.0, 9.0, 200.0), d(90.0, 20.0, 60.0), d(120.0, 20.0, 8.0));
+    assert_eq!(telling(vec![shallow, lug, narrow], &limits()), Some(lug));
+    assert!(lug.counts(&limits()) && !shallow.counts(&limits()) && !narrow.counts(&limits()));
+    assert_eq!(telling(vec![narrow, shallow], &limits()), Some(shallow));
+    assert_eq!(telling(Vec::new(), &limits()), None);
+}
