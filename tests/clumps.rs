@@ -80,6 +80,16 @@ fn unknown_beside_a_picked_part(seed: u64, index: u64, names: &[&str]) {
     assert!(!p.accepted && p.reason == Reason::UnknownType, "{}", p.detail());
 }
 
+/// In scene `index` of the catalogue of `seed`, whose one part is the unknown `name`, that part
+/// is one result, rejected *unknown type*.
+fn one_unknown_part(seed: u64, index: u64, name: &str) {
+    let _shared = common::MACHINE.blocking_read();
+    let (est, scene) = catalogue_scene(seed, index, &[name]);
+    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+    let stories: Vec<String> = fe.parts.iter().map(|p| p.detail()).collect();
+    assert!(fe.parts.len() == 1 && fe.parts[0].reason == Reason::UnknownType, "{stories:#?}");
+}
+
 #[test]
 fn a_touching_pair_gives_both_parts() {
     let (sim, est) = setup(404);
@@ -387,11 +397,7 @@ fn a_part_the_glance_left_out_is_found_by_a_shape_like_it() {
 /// part of a type not enrolled.
 #[test]
 fn an_unknown_part_alone_is_one_unknown_part() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(97, 8, &["U02"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    let stories: Vec<String> = fe.parts.iter().map(|p| p.detail()).collect();
-    assert!(fe.parts.len() == 1 && fe.parts[0].reason == Reason::UnknownType, "{stories:#?}");
+    one_unknown_part(97, 8, "U02");
 }
 
 /// An unknown part touching a known one is a type not enrolled, not a part something lies
@@ -489,11 +495,7 @@ fn an_unknown_fork_with_longer_arms_is_not_the_known_fork() {
 /// enrolled.
 #[test]
 fn a_second_notch_beside_the_parents_is_a_type_not_enrolled() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(83, 44, &["U03"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    let stories: Vec<String> = fe.parts.iter().map(|p| p.detail()).collect();
-    assert!(fe.parts.len() == 1 && fe.parts[0].reason == Reason::UnknownType, "{stories:#?}");
+    one_unknown_part(83, 44, "U03");
 }
 
 /// A fork of another shape, a little smaller than a known one (U02 of the catalogue of seed 83
@@ -502,9 +504,5 @@ fn a_second_notch_beside_the_parents_is_a_type_not_enrolled() {
 /// alone and departing: a type not enrolled, never accepted.
 #[test]
 fn a_smaller_fork_of_another_shape_is_not_the_known_fork() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(83, 62, &["U02"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    let stories: Vec<String> = fe.parts.iter().map(|p| p.detail()).collect();
-    assert!(fe.parts.len() == 1 && fe.parts[0].reason == Reason::UnknownType, "{stories:#?}");
+    one_unknown_part(83, 62, "U02");
 }
