@@ -320,6 +320,20 @@ pub fn departures(
             })
             .count();
         let less_material = 2 * less > run.points.len();
+        // Where the part has more material, how much of its own outline there the frame shows
+        // as the part's edge: shown along and checked of its points (counted once, read twice
+        // below).
+        let edges = (!less_material).then_some(light).flatten().map(|l| {
+            let shown: Vec<bool> = run
+                .points
+                .iter()
+                .filter_map(|&i| {
+                    let k = if lacks { part.nearest(outline[i], MAX_REACH).map(|(k, _, _)| k)? } else { i };
+                    Some(l.shows(own[k], part.normal(k), 0.5 * apart))
+                })
+                .collect();
+            (shown.iter().filter(|&&e| e).count(), shown.len())
+        });
         // What lies between the two outlines must look like what the departure says: the belt
         // where the part has less material (a notch), the part where it has more (a lug). A
         // stain against the part or a crevice the outline ran into looks like neither claims.
@@ -332,9 +346,7 @@ pub fn departures(
                 let belt_like = (m - belt).abs() < (m - body).abs();
                 // More material whose own outline shows the part's edge along nearly all of it
                 // is the part's, whatever its middle shows (a boss with a dark bore).
-                let edged = !lacks
-                    && !less_material
-                    && 10 * run.points.iter().filter(|&&i| l.shows(own[i], part.normal(i), 0.5 * apart)).count() >= 9 * run.points.len();
+                let edged = !lacks && edges.is_some_and(|(shown, of)| 10 * shown >= 9 * of);
                 if belt_like != less_material && !edged {
                     return None;
                 }
@@ -411,18 +423,8 @@ pub fn departures(
         // Where the part has more material, its own outline there is an edge of the part: the
         // frame shows the step from part to belt along most of it. An outline that ran around a
         // faint stain or a patch of noise on the belt beside the part shows no such step.
-        if !less_material && let Some(l) = light {
-            let edges: Vec<bool> = run
-                .points
-                .iter()
-                .filter_map(|&i| {
-                    let k = if lacks { part.nearest(outline[i], MAX_REACH).map(|(k, _, _)| k)? } else { i };
-                    Some(l.shows(own[k], part.normal(k), 0.5 * apart))
-                })
-                .collect();
-            if 2 * edges.iter().filter(|&&e| e).count() < edges.len() {
-                return None;
-            }
+        if edges.is_some_and(|(shown, of)| 2 * shown < of) {
+            return None;
         }
         let mid = outline[run.points[run.points.len() / 2]];
         Some(Departure {
