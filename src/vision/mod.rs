@@ -731,10 +731,15 @@ impl Estimator {
         let follows = |r: &Rival| r.local.map(|l| l.follows());
         let tied: Vec<&(Explanation, Rival)> = judged.iter().filter(|(_, r)| r.ties(&limits)).collect();
         // Where the outlines do not tell, what lies inside may tell for the rival (as on the
-        // separate-part path, `inside`).
-        let inside_tells = |r: &Rival| r.features.is_some_and(|x| x.tell_second());
+        // separate-part path, `inside`), when the image explains as much of the rival's outline
+        // as a part needs: one that leaves part of it unexplained where the first explains all
+        // is told by its outline after all (on the unseen catalogue of seed 97 a link of another
+        // size, at 1.11 of its scale, showed its slot's edges along the part's own).
+        let inside_tells = |s: &Explanation, r: &Rival| {
+            r.features.is_some_and(|x| x.tell_second()) && (s.support >= limits.min_support || first.support < limits.min_support)
+        };
         let (best, other) =
-            match tied.iter().find(|(_, r)| follows(r) == Some(Follows::Rival)).or(tied.iter().find(|(_, r)| inside_tells(r))) {
+            match tied.iter().find(|(_, r)| follows(r) == Some(Follows::Rival)).or(tied.iter().find(|(s, r)| inside_tells(s, r))) {
                 Some((s, _)) => (*s, Some(first)),
                 None => {
                     let reported = tied.iter().find(|(_, r)| follows(r) != Some(Follows::Best)).or(tied.first()).map(|(s, _)| *s);
@@ -837,7 +842,10 @@ impl Estimator {
         diag: f64,
         lambda: f64,
     ) -> Rival {
-        let tight = register::tight_tolerance(best.reg.rms, self.params.fit_tolerance, best.tolerance);
+        // The outline's noise is no more than the closer of the two fits' residuals: a template
+        // placed a little askew on the material (a face down's mirror image turned to fit its
+        // round body) leaves a residual that would blur the very stretches where the two differ.
+        let tight = register::tight_tolerance(best.reg.rms.min(other.reg.rms), self.params.fit_tolerance, best.tolerance);
         let coverage = |entry: usize, pose| register::measure(seen.outline, &self.lib.entries[entry].index, pose, tight, 1).coverage;
         let placed = |x: &Explanation| {
             let e = &self.lib.entries[x.entry];

@@ -4,7 +4,7 @@
 
 use opencv::core::Mat;
 
-use super::super::geometry::Affine;
+use super::super::geometry::{Affine, Pt};
 use super::super::shape::EdgeTest;
 use super::super::template::Library;
 use super::found::{Found, Probe, Region};
@@ -110,13 +110,31 @@ pub(super) fn order(
     let mut lifted = Vec::new();
     for &(owner, r) in rivals {
         for &k in keep {
-            if k == owner || found[k].under.is_some() || found[k].order_unclear || inside(&found[r].points, &deep[k]).len() < 4 {
+            // Under the part itself: the rival's outline across it shows as the part's does,
+            // when the rival follows the material more closely than the part (the part was
+            // named first by the vote, not by the image: its own lift is no evidence against a
+            // closer explanation, while a looser one gains nothing by it).
+            let beneath = found[k].under == Some(owner);
+            let decided = found[k].under.is_some() || found[k].order_unclear;
+            let closer = found[r].reg.rms < found[owner].reg.rms;
+            if k == owner || (decided && !(beneath && closer)) || inside(&found[r].points, &deep[k]).len() < 4 {
                 continue;
             }
             let p = measure(found, r, k);
             if lies_on_top(p.si, p.sk, p.fi, p.fk, p.enough, m) {
-                found[k].order_unclear = true;
-                over[r].extend(p.ii);
+                found[k].order_unclear |= !beneath;
+                if beneath {
+                    // Where the rival's outline runs with the part's across the lower part, it
+                    // shows as the part's does; where the two differ, only what the image shows
+                    // of each counts, or the part's lift alone would decide between them.
+                    let near = found[r].tolerance;
+                    let lifted: Vec<Pt> = over[owner].iter().map(|&j| found[owner].points[j].at).collect();
+                    let along: Vec<usize> =
+                        p.ii.into_iter().filter(|&j| lifted.iter().any(|q| (*q - found[r].points[j].at).norm() <= near)).collect();
+                    over[r].extend(along);
+                } else {
+                    over[r].extend(p.ii);
+                }
                 lifted.push((owner, r));
             }
         }

@@ -67,8 +67,8 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         let hyps = vote.hypotheses(&rest, scale, region.pool);
         take(&look, region, hyps, &mut found, &mut masks);
     }
-    let (mut found, mut masks, keep, rivals) = one_per_part(lib, found, masks);
-    look_alikes(&look, region, &mut found, &mut masks, &keep);
+    let (mut found, mut masks, keep, mut rivals) = one_per_part(lib, found, masks);
+    rivals.extend(look_alikes(&look, region, &mut found, &mut masks, &keep));
     layer::order(lib, region, &look.edge, &mut found, &masks, &keep, &rivals);
     let kept: Vec<&Mat> = keep.iter().map(|&i| &masks[i]).collect();
     let leftover = leftover::pieces(region, &kept, min_leftover).unwrap_or_default();
@@ -142,22 +142,27 @@ fn one_per_part(lib: &Library, found: Vec<Found>, masks: Vec<Mat>) -> (Vec<Found
 /// another type as well): each is looked at at the part's pose, and the best supported that the
 /// image explains joins its rivals, to be told apart where the two differ; and when it is
 /// better supported than the part itself, it is the part, the part its first rival (and its
-/// mask is the part's).
+/// mask is the part's). Any other that follows the material more closely than the part joins
+/// them too: on the unseen catalogue of seed 5 a face down lying on another part was found as
+/// its face up turned 11 degrees (its round body fits either way), while a shape of another
+/// type, no closer, was a little better supported than the right face.
+/// Each look joins `found` (with its mask), so that which part lies on top carries over to it
+/// (`layer::order`); returned as (part, look) pairs beside `one_per_part`'s.
 /// The vote ranks hypotheses by their share of votes and keeps a few, so a sibling explaining
 /// the same material as well may never be looked at; a part would then be accepted without
 /// ever being compared with the type it may be. Which of two look-alikes the vote happens to
 /// reach first must not decide which one is named: the one the image explains better is.
-fn look_alikes(look: &Look<'_>, region: &Region<'_>, found: &mut [Found], masks: &mut [Mat], keep: &[usize]) {
+fn look_alikes(look: &Look<'_>, region: &Region<'_>, found: &mut Vec<Found>, masks: &mut Vec<Mat>, keep: &[usize]) -> Vec<(usize, usize)> {
     // The shapes the glance cannot tell apart are looked at where it runs (more than
     // GLANCE_FROM templates; tests' full vote of the same catalogue too); below, every template
     // votes in full and its siblings are enough.
     let lib = look.lib;
     let near = if lib.entries.len() > GLANCE_FROM { &lib.resembles } else { &lib.alike };
     let todo: Vec<usize> = keep.iter().copied().filter(|&k| !near[found[k].entry].is_empty()).collect();
-    let rivals = each(region.pool, &todo, |&k| {
+    let looks = each(region.pool, &todo, |&k| {
         let f = &found[k];
         let pose = f.reg.pose;
-        near[f.entry]
+        let mut looks: Vec<Found> = near[f.entry]
             .iter()
             .filter_map(|&(j, rel)| {
                 let init = Similarity {
@@ -168,23 +173,41 @@ fn look_alikes(look: &Look<'_>, region: &Region<'_>, found: &mut [Found], masks:
                 };
                 look.at(j, look.aim(j, init))
             })
-            .max_by(|a, b| a.support.total_cmp(&b.support))
+            .collect();
+        // Best supported first (stable: nearest look-alike first among equals).
+        looks.sort_by(|a, b| b.support.total_cmp(&a.support));
+        looks
     });
-    for (k, rival) in todo.into_iter().zip(rivals) {
-        let Some(mut r) = rival else { continue };
-        let part = &mut found[k];
-        // The look-alike's own look replaces whatever the search found of it.
-        part.rivals.retain(|o| o.0 != r.entry);
-        if r.support > part.support {
-            r.rivals = std::iter::once((part.entry, part.reg, part.support)).chain(part.rivals.drain(..)).collect();
-            (r.under, r.order_unclear) = (part.under, part.order_unclear);
-            masks[k] = mask::mask_of(look.lib, &r, region.blob, region.coarse.factor).unwrap_or_default();
-            *part = r;
-        } else {
-            let at = part.rivals.iter().position(|o| o.2 < r.support).unwrap_or(part.rivals.len());
-            part.rivals.insert(at, (r.entry, r.reg, r.support));
+    let mut pairs = Vec::new();
+    for (k, looks) in todo.into_iter().zip(looks) {
+        for (n, mut r) in looks.into_iter().enumerate() {
+            // Beyond the best supported, a look-alike joins only where it follows the material
+            // more closely than the part: one less supported and looser says nothing more.
+            if n > 0 && r.reg.rms >= found[k].reg.rms {
+                continue;
+            }
+            // The look-alike's own look replaces whatever the search found of it.
+            found[k].rivals.retain(|o| o.0 != r.entry);
+            let mask = mask::mask_of(look.lib, &r, region.blob, region.coarse.factor).unwrap_or_default();
+            if n == 0 && r.support > found[k].support {
+                let part = &mut found[k];
+                r.rivals = std::iter::once((part.entry, part.reg, part.support)).chain(part.rivals.drain(..)).collect();
+                (r.under, r.order_unclear) = (part.under, part.order_unclear);
+                let was = std::mem::replace(part, r);
+                let was_mask = std::mem::replace(&mut masks[k], mask);
+                found.push(was);
+                masks.push(was_mask);
+            } else {
+                let list = &mut found[k].rivals;
+                let at = list.iter().position(|o| o.2 < r.support).unwrap_or(list.len());
+                list.insert(at, (r.entry, r.reg, r.support));
+                found.push(r);
+                masks.push(mask);
+            }
+            pairs.push((k, found.len() - 1));
         }
     }
+    pairs
 }
 
 /// The kept parts, with `under` renumbered from all explanations to the kept ones.
