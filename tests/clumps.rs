@@ -415,6 +415,14 @@ fn an_unknown_part_alone_is_one_unknown_part() {
     one_unknown_part(97, 8, "U02");
 }
 
+/// A large unknown part alone (U02 of the catalogue of seed 23) that resembles a smaller
+/// template only stretched to 1.2 of its scale, beyond any size a part takes, is one part of a
+/// type not enrolled, not a pile of parts (*touching/overlapping*).
+#[test]
+fn a_large_unknown_part_like_a_stretched_template_is_one_unknown_part() {
+    one_unknown_part(23, 35, "U02");
+}
+
 /// An unknown part touching a known one is a type not enrolled, not a part something lies
 /// against: the catalogue of seed 11's U04 has its lugs where its closest template (T006 down)
 /// has none, on open belt away from the T026 it touches. The T026 is picked.

@@ -697,10 +697,15 @@ fn ladder(m: &Measured, l: &Limits, mut seen: impl FnMut(Test, bool)) -> Option<
         && test(Test::Fit, o.fit >= l.min_fit)
     {
         // Several parts: the region is much larger than the part it resembles, and does
-        // resemble it (most of the template's outline lies on the region's). A region that
-        // shows little of any template is one part no template explains, whatever its size
-        // (up to the largest a part can be, above): a type not enrolled, not a pile.
-        let merged = m.area.is_some_and(|a| a > l.touching_area_ratio * o.nominal) && o.coverage >= 0.5;
+        // resemble it (most of the template's outline lies on the region's, at a scale a part
+        // of its type takes: one part of a pile is fitted at its own size). A region that
+        // shows little of any template, or resembles one only stretched beyond the sizes parts
+        // take, is one part no template explains, whatever its size (up to the largest a part
+        // can be, above): a type not enrolled, not a pile (on the unseen catalogue of seed 23,
+        // a large unknown part alone showed 0.57-0.59 of a smaller template's outline fitted
+        // at 1.19-1.21 of its scale).
+        let sized = o.scale >= l.scale_range.0 && o.scale <= l.scale_range.1;
+        let merged = m.area.is_some_and(|a| a > l.touching_area_ratio * o.nominal) && o.coverage >= 0.5 && sized;
         return Some(Verdict::NoFit { need: l.min_fit, merged });
     }
     if let Some(scale) = m.outline.as_ref().map(|o| o.scale).or(m.region.as_ref().map(|r| r.scale))

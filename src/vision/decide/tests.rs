@@ -456,8 +456,9 @@ fn alone_in_its_region_a_part_not_all_explained_is_a_type_not_enrolled() {
 }
 
 /// A region much larger than the template it resembles is several parts (touching), not an
-/// unknown type; one that shows little of the template's outline does not resemble it: one part
-/// no template explains, a type not enrolled, whatever its size.
+/// unknown type; one that shows little of the template's outline, or resembles it only at a
+/// scale no part takes, does not resemble it: one part no template explains, a type not
+/// enrolled, whatever its size.
 #[test]
 fn no_fit_on_a_region_twice_the_part_is_touching() {
     let mut m = separate();
@@ -467,6 +468,12 @@ fn no_fit_on_a_region_twice_the_part_is_touching() {
     let d = decide(m.clone(), limits());
     assert_eq!(d.verdict, Verdict::NoFit { need: 0.75, merged: true });
     assert_eq!(d.verdict.reason(), Reason::Touching);
+    // Resembling the template only stretched beyond the accepted scales: one part.
+    let mut stretched = m.clone();
+    stretched.outline.as_mut().unwrap().scale = 1.2;
+    let d = decide(stretched, limits());
+    assert_eq!(d.verdict, Verdict::NoFit { need: 0.75, merged: false });
+    assert_eq!(d.verdict.reason(), Reason::UnknownType);
     let o = m.outline.as_mut().unwrap();
     (o.fit, o.coverage) = (0.3, 0.3);
     let d = decide(m, limits());
