@@ -396,7 +396,8 @@ fn a_part_the_glance_left_out_is_found_by_a_shape_like_it() {
 /// look where it runs with the part. The scene: a ring with two lugs lying face down (T032 of
 /// the catalogue of seed 5) on another part; its face up, turned 11 degrees, fits the round
 /// body loosely (rms 1.6 px) and was found first, the right face (0.5 px) was less supported
-/// than a shape of another type and never held against it, and the face up was accepted.
+/// than a shape of another type and never held against it, and the face up was accepted. The
+/// part beneath is *covered* by the face down, as the PLC is told, not by the face up set aside.
 #[test]
 fn a_face_down_is_not_taken_for_its_face_up_turned_to_fit() {
     let _shared = common::MACHINE.blocking_read();
@@ -404,6 +405,10 @@ fn a_face_down_is_not_taken_for_its_face_up_turned_to_fit() {
     let fe = est.estimate(scene.image.view().unwrap()).unwrap();
     every_accept_is_right(&fe.parts, &scene.truth, 15);
     picked(&fe.parts, &scene.truth.parts[1]);
+    // The part beneath names what lies on it as the PLC gets it: the face down.
+    let under = at(&fe.parts, scene.truth.parts[0].x_px, scene.truth.parts[0].y_px).expect("a result at the T006");
+    assert_eq!(under.reason, Reason::Covered, "{}", under.detail());
+    assert!(under.detail().starts_with("T032 down lies on it"), "{}", under.detail());
 }
 
 /// Of two explanations the outlines do not tell apart by where they differ, the one the

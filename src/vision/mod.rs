@@ -637,6 +637,21 @@ impl Estimator {
     /// material it left: a piece the size of a part is an unexplained part, smaller ones debris.
     fn region_parts(&self, seen: &Seen<'_>, ex: &clump::Explained) -> (Vec<PartEstimate>, usize) {
         let mut out = workers::each(self.pool.as_deref(), &ex.parts, |f| self.region_part(seen, ex, f));
+        // A part lying on another is named there as it was itself decided: the search's first
+        // explanation of it may have given way to a look-alike (a face down found first as its
+        // face up), and the lower part's reason must not name the one set aside.
+        for (i, f) in ex.parts.iter().enumerate() {
+            let Some(k) = f.under else { continue };
+            let (Some(type_name), Some(face)) = (out[k].type_name.clone(), out[k].face) else { continue };
+            let by = Named { type_name, face };
+            let d = &mut out[i].decision;
+            if let Order::Under(n) = &mut d.measured.order {
+                *n = by.clone();
+            }
+            if let decide::Verdict::Covered { by: b } = &mut d.verdict {
+                *b = by;
+            }
+        }
         let mut debris = 0;
         for &(area, c) in &ex.leftover {
             if area < self.min_area {
