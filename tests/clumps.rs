@@ -442,6 +442,15 @@ fn a_large_unknown_part_like_a_stretched_template_is_one_unknown_part() {
     one_unknown_part(23, 35, "U02");
 }
 
+/// A notch cut beside a boss is as wide as it is: U03 of the catalogue of seed 7 is T006 (T005
+/// plus a boss) with a notch cut into the boss's side. The notch walls lie nearest the boss's
+/// outline, so the strip between the outlines folded over itself and measured 14 px wide, a
+/// slit; closed across its mouth it is 52 px. Alone, it was *ambiguous* between T006 and T005.
+#[test]
+fn a_notch_cut_beside_a_boss_is_a_type_not_enrolled() {
+    one_unknown_part(7, 26, "U03");
+}
+
 /// An unknown part touching a known one is a type not enrolled, not a part something lies
 /// against: the catalogue of seed 11's U04 has its lugs where its closest template (T006 down)
 /// has none, on open belt away from the T026 it touches. The T026 is picked.

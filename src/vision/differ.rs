@@ -357,9 +357,13 @@ pub fn departures(
         // slit the outline entered further than the template's is long and deep but narrow.
         // Beyond the index's reach the other outline's nearest point is the one searched for
         // (see `far`).
+        // The run closed by the chord across its ends as well: where the other outline's
+        // nearest points fold back on themselves (a notch cut beside a boss, whose walls lie
+        // nearest the boss's outline), the first polygon crosses itself and its halves cancel.
         let mut poly: Vec<Pt> = run.points.iter().map(|&i| outline[i]).collect();
+        let closed = super::geometry::area_centroid(&poly).0.abs();
         poly.extend(run.points.iter().rev().filter_map(|&i| nearest_other(outline[i])));
-        let width = super::geometry::area_centroid(&poly).0.abs() / depth_max.max(1e-9);
+        let width = super::geometry::area_centroid(&poly).0.abs().max(closed) / depth_max.max(1e-9);
         // The template's own outline where it faces itself across a narrow gap of belt (a
         // crevice between a boss and an arm): how deep an outline runs into it is the light's
         // doing, not the part's shape.
