@@ -425,6 +425,21 @@ fn the_closer_of_two_look_alikes_is_named() {
     picked(&fe.parts, &scene.truth.parts[1]);
 }
 
+/// Every explanation of a part that lies on another has its outline across it counted as seen,
+/// whichever explanation's lift was measured first. The scene: a T038 fork of the catalogue of
+/// seed 5 lying on a T026; the search kept its shorter look-alike T009 shrunk to 0.91 of its
+/// scale (clear of the T026), and the T038 at its pose (rms 0.7 px against 1.8) was held against
+/// it, but T009's other face had already been found lying on the T026, so the T038's lift was
+/// never measured: 0.875 of its outline seen and *touching/overlapping*, now picked.
+#[test]
+fn each_look_alike_lying_on_a_part_is_lifted_over_it() {
+    let _shared = common::MACHINE.blocking_read();
+    let (est, scene) = catalogue_scene(5, 87, &["T026", "T038"]);
+    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+    every_accept_is_right(&fe.parts, &scene.truth, 87);
+    picked(&fe.parts, &scene.truth.parts[1]);
+}
+
 /// One part alone on the belt is one story: an unknown fork (U02 of the catalogue of seed 97)
 /// whose longer arm a known fork (T029) lacks, which the region search explained as that fork,
 /// not seen whole, beside material it could not explain (both *touching/overlapping*), is one

@@ -115,9 +115,8 @@ pub(super) fn order(
             // named first by the vote, not by the image: its own lift is no evidence against a
             // closer explanation, while a looser one gains nothing by it).
             let beneath = found[k].under == Some(owner);
-            let decided = found[k].under.is_some() || found[k].order_unclear;
             let closer = found[r].reg.rms < found[owner].reg.rms;
-            if k == owner || (decided && !(beneath && closer)) || inside(&found[r].points, &deep[k]).len() < 4 {
+            if k == owner || (beneath && !closer) || inside(&found[r].points, &deep[k]).len() < 4 {
                 continue;
             }
             let p = measure(found, r, k);
@@ -128,9 +127,9 @@ pub(super) fn order(
                     // shows as the part's does; where the two differ, only what the image shows
                     // of each counts, or the part's lift alone would decide between them.
                     let near = found[r].tolerance;
-                    let lifted: Vec<Pt> = over[owner].iter().map(|&j| found[owner].points[j].at).collect();
+                    let raised: Vec<Pt> = over[owner].iter().map(|&j| found[owner].points[j].at).collect();
                     let along: Vec<usize> =
-                        p.ii.into_iter().filter(|&j| lifted.iter().any(|q| (*q - found[r].points[j].at).norm() <= near)).collect();
+                        p.ii.into_iter().filter(|&j| raised.iter().any(|q| (*q - found[r].points[j].at).norm() <= near)).collect();
                     over[r].extend(along);
                 } else {
                     over[r].extend(p.ii);
