@@ -83,6 +83,32 @@ pub(super) fn order(
     };
     let m = edge.margin;
     let mut over: Vec<Vec<usize>> = vec![Vec::new(); found.len()];
+    // Of each kept part, the explanation that follows its material most closely, where a
+    // look-alike (among `rivals`) does so more closely than the part.
+    let closest = |found: &[Found], o: usize| {
+        rivals
+            .iter()
+            .filter(|&&(w, r)| w == o && found[r].reg.rms < found[o].reg.rms)
+            .map(|&(_, r)| r)
+            .min_by(|&a, &b| found[a].reg.rms.total_cmp(&found[b].reg.rms))
+    };
+    let closer_pair = |found: &[Found], i: usize, k: usize| {
+        let (ci, ck) = (closest(found, i).unwrap_or(i), closest(found, k).unwrap_or(k));
+        ((ci, ck) != (i, k)).then_some((ci, ck))
+    };
+    // (part, explanation): a closer explanation than the part's whose outline across another
+    // part counts as seen (the part's own, when it is the explanation itself).
+    let mut shown: Vec<(usize, usize)> = Vec::new();
+    // Whether the first of a measured pair lies on the second (Some(true)), under it, or unclear.
+    let upper = |q: &Pair| {
+        if lies_on_top(q.si, q.sk, q.fi, q.fk, q.enough, m) {
+            Some(true)
+        } else if lies_on_top(q.sk, q.si, q.fk, q.fi, q.enough, m) {
+            Some(false)
+        } else {
+            None
+        }
+    };
     for (a, &i) in keep.iter().enumerate() {
         for &k in &keep[a + 1..] {
             if inside(&found[i].points, &deep[k]).len() < 4 && inside(&found[k].points, &deep[i]).len() < 4 {
@@ -95,6 +121,25 @@ pub(super) fn order(
             } else if lies_on_top(p.sk, p.si, p.fk, p.fi, p.enough, m) {
                 found[i].under.get_or_insert(k);
                 over[k].extend(p.kk);
+            } else if let Some((ci, ck)) = closer_pair(found, i, k)
+                && (inside(&found[ci].points, &deep[ck]).len() >= 4 || inside(&found[ck].points, &deep[ci]).len() >= 4)
+                && let q = measure(found, ci, ck)
+                && let Some(first_on_top) = upper(&q)
+            {
+                // The explanations kept do not tell, and one of them was the vote's first find:
+                // a look-alike follows that part's material more closely (a T001 found on a
+                // T033's material, its outline running where the T033 shows none, across the
+                // part on top). The order the closer explanation shows is the order of the
+                // material, whichever of the two is named.
+                if first_on_top {
+                    found[k].under.get_or_insert(i);
+                    over[ci].extend(q.ii);
+                    shown.push((i, ci));
+                } else {
+                    found[i].under.get_or_insert(k);
+                    over[ck].extend(q.kk);
+                    shown.push((k, ck));
+                }
             } else {
                 found[i].order_unclear = true;
                 found[k].order_unclear = true;
@@ -107,7 +152,7 @@ pub(super) fn order(
     // flange whose third lies on a link). Something may lie on the second part: which lies on
     // top is unclear for it; should the part be that explanation, its outline across the second
     // part counts as seen, as a kept part's does.
-    let mut lifted = Vec::new();
+    let mut lifted: Vec<(usize, usize)> = shown.into_iter().filter(|&(part, x)| part != x).collect();
     for &(owner, r) in rivals {
         for &k in keep {
             // Under the part itself: the rival's outline across it shows as the part's does,
