@@ -58,36 +58,40 @@ fn picked(parts: &[PartEstimate], t: &lfi_bridge::truth::TruthPart) {
     assert!(p.accepted && right(p, t), "the {} {}: {:?} {:?} {:.2}: {}", t.type_name, t.face, p.type_name, p.face, p.angle_deg, p.detail());
 }
 
-/// In scene `index` of the catalogue of `seed` (parts `names`), every part is picked.
-fn every_part_picked(seed: u64, index: u64, names: &[&str]) {
+/// Scene `index` of the catalogue of `seed` (parts `names`) estimated; whatever it accepts is
+/// right.
+fn estimated(seed: u64, index: u64, names: &[&str]) -> (Vec<PartEstimate>, lfi_bridge::sim::Scene) {
     let _shared = common::MACHINE.blocking_read();
     let (est, scene) = catalogue_scene(seed, index, names);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+    let parts = est.estimate(scene.image.view().unwrap()).unwrap().parts;
+    every_accept_is_right(&parts, &scene.truth, index);
+    (parts, scene)
+}
+
+/// In scene `index` of the catalogue of `seed` (parts `names`), every part is picked.
+fn every_part_picked(seed: u64, index: u64, names: &[&str]) {
+    let (parts, scene) = estimated(seed, index, names);
     for t in &scene.truth.parts {
-        picked(&fe.parts, t);
+        picked(&parts, t);
     }
 }
 
 /// In scene `index` of the catalogue of `seed` (parts `names`, the unknown one first), the
 /// unknown part is rejected *unknown type* and the known one beside it is picked.
 fn unknown_beside_a_picked_part(seed: u64, index: u64, names: &[&str]) {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(seed, index, names);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    picked(&fe.parts, &scene.truth.parts[1]);
+    let (parts, scene) = estimated(seed, index, names);
+    picked(&parts, &scene.truth.parts[1]);
     let u = &scene.truth.parts[0];
-    let p = at(&fe.parts, u.x_px, u.y_px).expect("a result at the unknown part");
+    let p = at(&parts, u.x_px, u.y_px).expect("a result at the unknown part");
     assert!(!p.accepted && p.reason == Reason::UnknownType, "{}", p.detail());
 }
 
 /// In scene `index` of the catalogue of `seed`, whose one part is the unknown `name`, that part
 /// is one result, rejected *unknown type*.
 fn one_unknown_part(seed: u64, index: u64, name: &str) {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(seed, index, &[name]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    let stories: Vec<String> = fe.parts.iter().map(|p| p.detail()).collect();
-    assert!(fe.parts.len() == 1 && fe.parts[0].reason == Reason::UnknownType, "{stories:#?}");
+    let (parts, _) = estimated(seed, index, &[name]);
+    let stories: Vec<String> = parts.iter().map(|p| p.detail()).collect();
+    assert!(parts.len() == 1 && parts[0].reason == Reason::UnknownType, "{stories:#?}");
 }
 
 #[test]
@@ -364,16 +368,14 @@ fn a_part_a_few_percent_off_the_templates_scale_is_found_in_a_region() {
 /// flange does not reach, as lying free.
 #[test]
 fn a_type_whose_outline_is_part_of_the_parts_is_not_accepted_for_it() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(41, 60, &["T032", "T020"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    let flange = at(&fe.parts, scene.truth.parts[1].x_px, scene.truth.parts[1].y_px).expect("a result at the flange");
+    let (parts, scene) = estimated(41, 60, &["T032", "T020"]);
+    let flange = at(&parts, scene.truth.parts[1].x_px, scene.truth.parts[1].y_px).expect("a result at the flange");
     assert_ne!(flange.type_name.as_deref(), Some("T014"), "{}", flange.detail());
     assert!(!flange.accepted || right(flange, &scene.truth.parts[1]), "{:?} {:?}: {}", flange.type_name, flange.face, flange.detail());
     // The link under the third lug: the search kept the two-lug flange, which does not reach
     // it, but the three-lug one it found as well lies on it.
     assert!(scene.truth.parts[0].visible_fraction < 0.98);
-    let link = at(&fe.parts, scene.truth.parts[0].x_px, scene.truth.parts[0].y_px).expect("a result at the link");
+    let link = at(&parts, scene.truth.parts[0].x_px, scene.truth.parts[0].y_px).expect("a result at the link");
     assert!(!link.accepted, "a covered link accepted: {}", link.detail());
 }
 
@@ -385,10 +387,8 @@ fn a_type_whose_outline_is_part_of_the_parts_is_not_accepted_for_it() {
 /// against the full vote as well (`Estimator::check_glance`).
 #[test]
 fn a_part_the_glance_left_out_is_found_by_a_shape_like_it() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(97, 78, &["T007", "T010"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    picked(&fe.parts, &scene.truth.parts[1]);
+    let (parts, scene) = estimated(97, 78, &["T007", "T010"]);
+    picked(&parts, &scene.truth.parts[1]);
 }
 
 /// A part found in a region is held against every look-alike that follows its material more
@@ -400,13 +400,10 @@ fn a_part_the_glance_left_out_is_found_by_a_shape_like_it() {
 /// part beneath is *covered* by the face down, as the PLC is told, not by the face up set aside.
 #[test]
 fn a_face_down_is_not_taken_for_its_face_up_turned_to_fit() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(5, 15, &["T006", "T032"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    every_accept_is_right(&fe.parts, &scene.truth, 15);
-    picked(&fe.parts, &scene.truth.parts[1]);
+    let (parts, scene) = estimated(5, 15, &["T006", "T032"]);
+    picked(&parts, &scene.truth.parts[1]);
     // The part beneath names what lies on it as the PLC gets it: the face down.
-    let under = at(&fe.parts, scene.truth.parts[0].x_px, scene.truth.parts[0].y_px).expect("a result at the T006");
+    let under = at(&parts, scene.truth.parts[0].x_px, scene.truth.parts[0].y_px).expect("a result at the T006");
     assert_eq!(under.reason, Reason::Covered, "{}", under.detail());
     assert!(under.detail().starts_with("T032 down lies on it"), "{}", under.detail());
 }
@@ -418,11 +415,8 @@ fn a_face_down_is_not_taken_for_its_face_up_turned_to_fit() {
 /// looked at at its pose beat by 0.625 to 0.515 of its outline at 3.3 px: *ambiguous* before.
 #[test]
 fn the_closer_of_two_look_alikes_is_named() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(101, 24, &["T021", "T019"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    every_accept_is_right(&fe.parts, &scene.truth, 24);
-    picked(&fe.parts, &scene.truth.parts[1]);
+    let (parts, scene) = estimated(101, 24, &["T021", "T019"]);
+    picked(&parts, &scene.truth.parts[1]);
 }
 
 /// Every explanation of a part that lies on another has its outline across it counted as seen,
@@ -433,11 +427,8 @@ fn the_closer_of_two_look_alikes_is_named() {
 /// never measured: 0.875 of its outline seen and *touching/overlapping*, now picked.
 #[test]
 fn each_look_alike_lying_on_a_part_is_lifted_over_it() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(5, 87, &["T026", "T038"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    every_accept_is_right(&fe.parts, &scene.truth, 87);
-    picked(&fe.parts, &scene.truth.parts[1]);
+    let (parts, scene) = estimated(5, 87, &["T026", "T038"]);
+    picked(&parts, &scene.truth.parts[1]);
 }
 
 /// Which part lies on top is read from the explanation that follows a part's material most
@@ -448,12 +439,9 @@ fn each_look_alike_lying_on_a_part_is_lifted_over_it() {
 /// *touching/overlapping*. Held with the T033, the T009 lies on top: picked, the T033 covered.
 #[test]
 fn which_part_lies_on_top_is_read_from_the_closer_explanation() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(19, 33, &["T033", "T009"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    every_accept_is_right(&fe.parts, &scene.truth, 33);
-    picked(&fe.parts, &scene.truth.parts[1]);
-    let under = at(&fe.parts, scene.truth.parts[0].x_px, scene.truth.parts[0].y_px).expect("a result at the T033");
+    let (parts, scene) = estimated(19, 33, &["T033", "T009"]);
+    picked(&parts, &scene.truth.parts[1]);
+    let under = at(&parts, scene.truth.parts[0].x_px, scene.truth.parts[0].y_px).expect("a result at the T033");
     assert_eq!(under.reason, Reason::Covered, "{}", under.detail());
 }
 
@@ -464,14 +452,16 @@ fn which_part_lies_on_top_is_read_from_the_closer_explanation() {
 /// above (catalogue of seed 5, scene 87).
 #[test]
 fn belt_that_parts_close_in_is_no_material() {
-    let _shared = common::MACHINE.blocking_read();
-    let (sim, est) = setup(11);
-    let scene = sim.scene(15).unwrap();
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    assert_eq!(fe.parts.len(), scene.truth.parts.len(), "{:?}", fe.parts.iter().map(|p| p.detail()).collect::<Vec<_>>());
-    let (est, scene) = catalogue_scene(5, 87, &["T026", "T038"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    assert_eq!(fe.parts.len(), 2, "{:?}", fe.parts.iter().map(|p| p.detail()).collect::<Vec<_>>());
+    let stories = |parts: &[PartEstimate]| parts.iter().map(|p| p.detail()).collect::<Vec<_>>();
+    {
+        let _shared = common::MACHINE.blocking_read();
+        let (sim, est) = setup(11);
+        let scene = sim.scene(15).unwrap();
+        let fe = est.estimate(scene.image.view().unwrap()).unwrap();
+        assert_eq!(fe.parts.len(), scene.truth.parts.len(), "{:?}", stories(&fe.parts));
+    }
+    let (parts, _) = estimated(5, 87, &["T026", "T038"]);
+    assert_eq!(parts.len(), 2, "{:?}", stories(&parts));
 }
 
 /// One part alone on the belt is one story: an unknown fork (U02 of the catalogue of seed 97)
@@ -543,12 +533,10 @@ fn a_notch_the_regions_outline_bridges_is_told_by_the_light() {
 /// *touching/overlapping*, its outline explained 0.90.
 #[test]
 fn an_upper_part_found_among_rivals_is_seen_across_the_lower_one() {
-    let _shared = common::MACHINE.blocking_read();
-    let (est, scene) = catalogue_scene(41, 60, &["T032", "T020"]);
-    let fe = est.estimate(scene.image.view().unwrap()).unwrap();
-    picked(&fe.parts, &scene.truth.parts[1]);
+    let (parts, scene) = estimated(41, 60, &["T032", "T020"]);
+    picked(&parts, &scene.truth.parts[1]);
     let under = &scene.truth.parts[0];
-    assert!(at(&fe.parts, under.x_px, under.y_px).is_some_and(|p| !p.accepted), "the covered T032 is not accepted");
+    assert!(at(&parts, under.x_px, under.y_px).is_some_and(|p| !p.accepted), "the covered T032 is not accepted");
 }
 
 /// A catalogue with a small type decimates finer than the configured factor, but a frame is
