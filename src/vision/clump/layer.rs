@@ -96,8 +96,8 @@ pub(super) fn order(
         let (ci, ck) = (closest(found, i).unwrap_or(i), closest(found, k).unwrap_or(k));
         ((ci, ck) != (i, k)).then_some((ci, ck))
     };
-    // (part, explanation): a closer explanation than the part's whose outline across another
-    // part counts as seen (the part's own, when it is the explanation itself).
+    // (part, explanation): the explanation of a part on top whose outline across the part
+    // beneath counts as seen (the part itself, or a closer look-alike of it).
     let mut shown: Vec<(usize, usize)> = Vec::new();
     // Whether the first of a measured pair lies on the second (Some(true)), under it, or unclear.
     let upper = |q: &Pair| {
@@ -115,34 +115,36 @@ pub(super) fn order(
                 continue; // touching at most
             }
             let p = measure(found, i, k);
-            if lies_on_top(p.si, p.sk, p.fi, p.fk, p.enough, m) {
-                found[k].under.get_or_insert(i);
-                over[i].extend(p.ii);
-            } else if lies_on_top(p.sk, p.si, p.fk, p.fi, p.enough, m) {
-                found[i].under.get_or_insert(k);
-                over[k].extend(p.kk);
-            } else if let Some((ci, ck)) = closer_pair(found, i, k)
-                && (inside(&found[ci].points, &deep[ck]).len() >= 4 || inside(&found[ck].points, &deep[ci]).len() >= 4)
-                && let q = measure(found, ci, ck)
-                && let Some(first_on_top) = upper(&q)
-            {
-                // The explanations kept do not tell, and one of them was the vote's first find:
-                // a look-alike follows that part's material more closely (a T001 found on a
-                // T033's material, its outline running where the T033 shows none, across the
-                // part on top). The order the closer explanation shows is the order of the
-                // material, whichever of the two is named.
-                if first_on_top {
+            // (whether the first lies on top, the two explanations measured, how): the kept
+            // ones, or where they do not tell, the closest look-alikes. One of the kept ones may
+            // be the vote's first find while a look-alike follows that part's material more
+            // closely (a T001 found on a T033's material, its outline running where the T033
+            // shows none, across the part on top): the order the closer explanation shows is
+            // the order of the material, whichever of the two is named.
+            let settled = match upper(&p) {
+                Some(first) => Some((first, i, k, p)),
+                None => closer_pair(found, i, k)
+                    .filter(|&(ci, ck)| inside(&found[ci].points, &deep[ck]).len() >= 4 || inside(&found[ck].points, &deep[ci]).len() >= 4)
+                    .and_then(|(ci, ck)| {
+                        let q = measure(found, ci, ck);
+                        upper(&q).map(|first| (first, ci, ck, q))
+                    }),
+            };
+            match settled {
+                Some((true, xi, _, q)) => {
                     found[k].under.get_or_insert(i);
-                    over[ci].extend(q.ii);
-                    shown.push((i, ci));
-                } else {
-                    found[i].under.get_or_insert(k);
-                    over[ck].extend(q.kk);
-                    shown.push((k, ck));
+                    over[xi].extend(q.ii);
+                    shown.push((i, xi));
                 }
-            } else {
-                found[i].order_unclear = true;
-                found[k].order_unclear = true;
+                Some((false, _, xk, q)) => {
+                    found[i].under.get_or_insert(k);
+                    over[xk].extend(q.kk);
+                    shown.push((k, xk));
+                }
+                None => {
+                    found[i].order_unclear = true;
+                    found[k].order_unclear = true;
+                }
             }
         }
     }

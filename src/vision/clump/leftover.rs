@@ -45,11 +45,12 @@ pub(super) fn pieces(region: &Region<'_>, masks: &[&Mat], min_area: f64) -> open
     let mut contours: Vector<Vector<Point>> = Vector::new();
     imgproc::find_contours(&opened, &mut contours, imgproc::RETR_EXTERNAL, imgproc::CHAIN_APPROX_NONE, Point::new(0, 0))?;
     let f = region.coarse.factor as f64;
-    // The belt's grey: the decimated frame beside the region (outside its dilated mask), the
-    // median, so that another part reaching into the box moves it little.
     let grey = &region.coarse.blurred;
     let outside = |x: i32, y: i32| blob.mask.at_2d::<u8>(y, x).map_or(true, |v| *v == 0);
-    let belt = median(grey, blob.mask_origin, blob.mask.cols(), blob.mask.rows(), outside);
+    // The belt's grey: the decimated frame beside the region (outside its dilated mask), the
+    // median, so that another part reaching into the box moves it little. Measured once, and
+    // only for a piece that may be belt (most regions leave none).
+    let mut belt: Option<Option<f64>> = None;
     let mut out = Vec::new();
     for c in contours.iter() {
         let pts: Vec<Pt> = c
@@ -65,32 +66,17 @@ pub(super) fn pieces(region: &Region<'_>, masks: &[&Mat], min_area: f64) -> open
         if a.abs() < min_area {
             continue;
         }
-        // The belt's grey within a tenth of the step from belt to part along the region's
-        // outline: belt the parts close in. (Measured on the eighteen sets: belt so closed in
-        // within 0.04 of the step, a belt's seam of dashes 0.17, unknown parts 0.33 and more.)
-        let mut piece = Mat::new_rows_cols_with_default(opened.rows(), opened.cols(), core::CV_8UC1, Scalar::all(0.0))?;
-        let mut one: Vector<Vector<Point>> = Vector::new();
-        one.push(c.clone());
-        imgproc::draw_contours(
-            &mut piece,
-            &one,
-            0,
-            Scalar::all(255.0),
-            imgproc::FILLED,
-            imgproc::LINE_8,
-            &core::no_array(),
-            0,
-            Point::new(0, 0),
-        )?;
-        let inside = |x: i32, y: i32| piece.at_2d::<u8>(y, x).is_ok_and(|v| *v > 0) && opened.at_2d::<u8>(y, x).is_ok_and(|v| *v > 0);
-        let own = median(grey, blob.mask_origin, blob.mask.cols(), blob.mask.rows(), inside);
-        // And closed in: its outline runs along the region's outer outline hardly anywhere (a
+        // Closed in: its outline runs along the region's outer outline hardly anywhere (a
         // quarter at most: a chink the closing bridged), where a part beside the others makes
         // much of it (a dark face of a part not enrolled must not pass for belt).
         let reaches = |q: Point| (-2..=2).any(|dy| (-2..=2).any(|dx| outside(q.x + dx, q.y + dy)));
-        let along = c.iter().filter(|&q| reaches(q)).count();
-        let closed_in = 4 * along <= c.len();
-        if let (true, Some(belt), Some(own)) = (closed_in, belt, own)
+        let closed_in = 4 * c.iter().filter(|&q| reaches(q)).count() <= c.len();
+        // And the belt's grey within a tenth of the step from belt to part along the region's
+        // outline: belt the parts close in. (Measured on the eighteen sets: belt so closed in
+        // within 0.04 of the step, a belt's seam of dashes 0.17, unknown parts 0.33 and more.)
+        if closed_in
+            && let Some(belt) = *belt.get_or_insert_with(|| median(grey, blob.mask_origin, blob.mask.cols(), blob.mask.rows(), outside))
+            && let Some(own) = own_grey(grey, &opened, &c, blob.mask_origin)?
             && (own - belt).abs() < 0.1 * region.contrast
         {
             continue;
@@ -98,6 +84,27 @@ pub(super) fn pieces(region: &Region<'_>, masks: &[&Mat], min_area: f64) -> open
         out.push((a.abs(), centroid));
     }
     Ok(out)
+}
+
+/// The median grey of `image` over the piece of `opened` (its mask, at `origin` in the image)
+/// that the external contour `c` bounds.
+fn own_grey(image: &Mat, opened: &Mat, c: &Vector<Point>, origin: Point) -> opencv::Result<Option<f64>> {
+    let mut piece = Mat::new_rows_cols_with_default(opened.rows(), opened.cols(), core::CV_8UC1, Scalar::all(0.0))?;
+    let mut one: Vector<Vector<Point>> = Vector::new();
+    one.push(c.clone());
+    imgproc::draw_contours(
+        &mut piece,
+        &one,
+        0,
+        Scalar::all(255.0),
+        imgproc::FILLED,
+        imgproc::LINE_8,
+        &core::no_array(),
+        0,
+        Point::new(0, 0),
+    )?;
+    let inside = |x: i32, y: i32| piece.at_2d::<u8>(y, x).is_ok_and(|v| *v > 0) && opened.at_2d::<u8>(y, x).is_ok_and(|v| *v > 0);
+    Ok(median(image, origin, opened.cols(), opened.rows(), inside))
 }
 
 /// The median grey of `image` over the `cols` x `rows` box at `origin` where `take(x, y)` holds
