@@ -445,6 +445,18 @@ fn which_part_lies_on_top_is_read_from_the_closer_explanation() {
     assert_eq!(under.reason, Reason::Covered, "{}", under.detail());
 }
 
+/// A sibling's difference lying over the part beneath is seen by the upper part's edge across
+/// that part's surface. The scene: a T028 of the catalogue of seed 77 whose ring lies on a
+/// T003; its sibling T029 has a lug on the ring, just where it lies over the T003, whose
+/// surface is a shade darker than the ring. The region's outline runs around both, so the
+/// stretch where the siblings differ was hidden: *ambiguous*. The frame shows the ring's edge
+/// there and no lug's: picked.
+#[test]
+fn a_siblings_difference_over_the_part_beneath_is_seen() {
+    let (parts, scene) = estimated(77, 60, &["T003", "T028"]);
+    picked(&parts, &scene.truth.parts[1]);
+}
+
 /// Belt that parts close in (between a fork's arms where another part lies across their ends)
 /// lies inside the region's outer outline but is no material: each frame gives one result per
 /// part, not a further *touching/overlapping* for "material no enrolled part explains". The

@@ -59,17 +59,27 @@ impl Placed<'_> {
 /// plainly. Only what is shown counts: where a neighbour lies against or over the stretch the
 /// frame shows no step whichever template is right, so a stretch not shown stays hidden and
 /// [`Local::follows`] asks the other template's stretch to be seen and not followed.
+///
+/// Where the part lies on top of another (`over`, frame pixels: inside a part found beneath
+/// it), its edge runs across that part's surface, which is itself part-coloured, shaded by
+/// its own faces: the step from the upper part's material to it is as plain to the eye as to
+/// the belt but smaller, so it counts from the step that shows an outline there at all
+/// ([`Light::shows_over`]). Without the upper part's material there, both sides of a line are
+/// the lower part's surface and show no step, so a lug lying over a lower part, or its
+/// absence, is seen as the layering sees which part is on top.
+#[allow(clippy::too_many_arguments)]
 pub fn compare(
     part: &OutlineIndex,
     best: Placed<'_>,
     rival: Placed<'_>,
     excused: &dyn Fn(Pt) -> bool,
+    over: &dyn Fn(Pt) -> bool,
     light: Option<&Light<'_>>,
     near: f64,
 ) -> Local {
     let (apart, min_run) = separation(near);
-    let b = stretches(part, best, rival, excused, light, near, apart, min_run);
-    let r = stretches(part, rival, best, excused, light, near, apart, min_run);
+    let b = stretches(part, best, rival, excused, over, light, near, apart, min_run);
+    let r = stretches(part, rival, best, excused, over, light, near, apart, min_run);
     let ((_, mid), on) = if b.longest.0 >= r.longest.0 { (b.longest, best) } else { (r.longest, rival) };
     let at = mid.map(|q| on.angle_at(q));
     Local {
@@ -101,12 +111,17 @@ struct Stretches {
 /// [`Local::follows`] to name its template.
 const MOST_SHOWN: f64 = 0.7;
 
+/// The step, as a fraction of the part-to-belt contrast, that shows an upper part's edge over a
+/// lower part ([`Light::shows_over`]).
+const OVER: f64 = 0.1;
+
 #[allow(clippy::too_many_arguments)]
 fn stretches(
     part: &OutlineIndex,
     this: Placed<'_>,
     other: Placed<'_>,
     excused: &dyn Fn(Pt) -> bool,
+    over: &dyn Fn(Pt) -> bool,
     light: Option<&Light<'_>>,
     near: f64,
     apart: f64,
@@ -123,7 +138,13 @@ fn stretches(
         // between them: the frame's step across the template's outline there is as good a sign
         // of the part's edge as the outline. Only there: elsewhere the outline is the part's
         // own, and a step inside a part (a shaded rim, a boss) is no edge.
-        let lit = |i: usize| against && light.is_some_and(|l| l.shows(frame[i], outward(this, i), 0.5 * apart));
+        let lit = |i: usize| {
+            against
+                && light.is_some_and(|l| {
+                    let (at, n, r) = (frame[i], outward(this, i), 0.5 * apart);
+                    if over(at) { l.shows_over(at, n, r) } else { l.shows(at, n, r) }
+                })
+        };
         let seen = run.points.iter().filter(|&&i| part.any_within(frame[i], near) || lit(i)).map(|&i| run.step(&frame, i)).sum::<f64>();
         if against && (light.is_none() || seen < MOST_SHOWN * run.len) {
             out.hidden += run.len;
@@ -183,15 +204,19 @@ pub struct Light<'a> {
     frame: GrayView<'a>,
     sign: f64,
     least: f64,
+    least_over: f64,
 }
 
 impl<'a> Light<'a> {
     /// The light of a frame whose parts are `brighter` than the belt by `contrast`, with pixel
     /// noise `noise` (gray levels): a step counts from 30 % of the contrast, and from four times
-    /// the noise of the difference of two means of 15 samples.
+    /// the noise of the difference of two means of 15 samples; over a lower part, from 10 % of
+    /// the contrast ([`Light::shows_over`]).
     pub fn new(frame: GrayView<'a>, brighter: bool, contrast: f64, noise: f64) -> Self {
-        let least = (0.3 * contrast).max(4.0 * noise * (2.0f64 / 15.0).sqrt());
-        Self { frame, sign: if brighter { 1.0 } else { -1.0 }, least }
+        let floor = 4.0 * noise * (2.0f64 / 15.0).sqrt();
+        let least = (0.3 * contrast).max(floor);
+        let least_over = (OVER * contrast).max(floor);
+        Self { frame, sign: if brighter { 1.0 } else { -1.0 }, least, least_over }
     }
 
     fn mean(&self, c: Pt, n: Pt) -> f64 {
@@ -232,6 +257,15 @@ impl<'a> Light<'a> {
     /// `at` with outward unit normal `n`, within `r` of it either way.
     pub fn shows(&self, at: Pt, n: Pt, r: f64) -> bool {
         self.step(at, n, r) >= self.least
+    }
+
+    /// Whether the frame steps from part (inside) to a darker (brighter, for dark parts)
+    /// surface of a part beneath (outside) across that line: the step that shows an outline
+    /// at all where one part lies on another, the layering's (a tenth of the contrast, 0.4 x
+    /// its edge threshold of a quarter). With the part's polarity only: a lower part's own
+    /// edges, crossed by a line over it, come with either.
+    pub fn shows_over(&self, at: Pt, n: Pt, r: f64) -> bool {
+        self.step(at, n, r).abs() >= self.least_over
     }
 
     /// The step in gray level across that line, positive with the part's polarity.
@@ -608,8 +642,9 @@ mod tests {
         let (with, without) = (OutlineIndex::new(&plate(25.0)), OutlineIndex::new(&plate(0.0)));
         let at = pose(600.0, 400.0, 37.0);
         let frame = |t: &[Pt]| OutlineIndex::of_frame(&t.iter().map(|&q| at.apply(q)).collect::<Vec<_>>());
-        let cmp =
-            |part: &OutlineIndex, a: &OutlineIndex, b: &OutlineIndex| compare(part, placed(a, at), placed(b, at), &|_| false, None, 2.0);
+        let cmp = |part: &OutlineIndex, a: &OutlineIndex, b: &OutlineIndex| {
+            compare(part, placed(a, at), placed(b, at), &|_| false, &|_| false, None, 2.0)
+        };
 
         let l = cmp(&frame(&plate(25.0)), &with, &without);
         assert_eq!(l.follows(), Follows::Best, "{l:?}");
@@ -621,16 +656,23 @@ mod tests {
         assert_eq!(l.follows(), Follows::Neither, "{l:?}");
         // A neighbour against the lug hides a stretch: nothing tells.
         let lug_top = at.apply(Pt::new(100.0, -25.0));
-        let hidden =
-            compare(&frame(&plate(25.0)), placed(&with, at), placed(&without, at), &|q: Pt| (q - lug_top).norm() < 10.0, None, 2.0);
+        let hidden = compare(
+            &frame(&plate(25.0)),
+            placed(&with, at),
+            placed(&without, at),
+            &|q: Pt| (q - lug_top).norm() < 10.0,
+            &|_| false,
+            None,
+            2.0,
+        );
         assert!(hidden.hidden_len > 0.0 && hidden.follows() == Follows::Unclear, "{hidden:?}");
         // A neighbour against the other's straight edge hides that stretch, but the lug is seen
         // and followed: that tells. Not lying where the hidden edge would be tells nothing.
         let edge = at.apply(Pt::new(100.0, 0.0));
         let by_edge = |q: Pt| (q - edge).norm() < 10.0;
-        let l = compare(&frame(&plate(25.0)), placed(&with, at), placed(&without, at), &by_edge, None, 2.0);
+        let l = compare(&frame(&plate(25.0)), placed(&with, at), placed(&without, at), &by_edge, &|_| false, None, 2.0);
         assert!(l.hidden_len > 0.0 && l.follows() == Follows::Best, "{l:?}");
-        let l = compare(&frame(&plate(0.0)), placed(&with, at), placed(&without, at), &by_edge, None, 2.0);
+        let l = compare(&frame(&plate(0.0)), placed(&with, at), placed(&without, at), &by_edge, &|_| false, None, 2.0);
         assert!(l.hidden_len > 0.0 && l.follows() == Follows::Unclear, "{l:?}");
         let l = cmp(&frame(&plate(25.0)), &with, &with);
         assert_eq!((l.best_len, l.rival_len, l.follows()), (0.0, 0.0, Follows::Unclear), "{l:?}");
@@ -670,11 +712,75 @@ mod tests {
             let img = image(notch);
             let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
             let (a, b) = if first_notched { (&notched, &plain) } else { (&plain, &notched) };
-            let l = compare(&region, placed(a, at), placed(b, at), &against, Some(&light), 2.0);
+            let l = compare(&region, placed(a, at), placed(b, at), &against, &|_| false, Some(&light), 2.0);
             assert_eq!(l.follows(), expect, "notch in the image {notch}, notched template first {first_notched}: {l:?}");
             // Without the frame's word, the stretch against the neighbour is hidden.
-            let l = compare(&region, placed(a, at), placed(b, at), &against, None, 2.0);
+            let l = compare(&region, placed(a, at), placed(b, at), &against, &|_| false, None, 2.0);
             assert!(l.hidden_len > 0.0 && l.follows() == Follows::Unclear, "{l:?}");
+        }
+    }
+
+    /// A lug that lies over a lower part: the region's outline runs around both parts, and the
+    /// lower part's surface, a shade darker or brighter than the upper part's, lies on both
+    /// sides of any line across it. The frame shows the upper part's edge there by a step
+    /// smaller than the part-to-belt contrast, of either sign; without the upper part's material
+    /// no step shows. Where the two parts are one shade, nothing tells.
+    #[test]
+    fn a_lug_over_a_lower_part_is_seen_by_its_step_either_way() {
+        use crate::vision::frame::GrayImage;
+        let at = pose(200.0, 150.0, 0.0);
+        let (w, h) = (400, 300);
+        // The lower part spans frame x 60..340, y 40..130; the plate on it x 100..300, y
+        // 100..200, with a lug (template lug 10) at x 180..220, y 90..100.
+        let image = |lug: bool, lower: u8| {
+            let mut img = GrayImage::new(w, h, 50);
+            for y in 40..130 {
+                for x in 60..340 {
+                    img.data[y * w + x] = lower;
+                }
+            }
+            for y in 90..200 {
+                for x in 100..300 {
+                    if y >= 100 || (lug && (180..220).contains(&x)) {
+                        img.data[y * w + x] = 180;
+                    }
+                }
+            }
+            img
+        };
+        let corners = [
+            Pt::new(60.0, 40.0),
+            Pt::new(340.0, 40.0),
+            Pt::new(340.0, 130.0),
+            Pt::new(300.0, 130.0),
+            Pt::new(300.0, 200.0),
+            Pt::new(100.0, 200.0),
+            Pt::new(100.0, 130.0),
+            Pt::new(60.0, 130.0),
+        ];
+        let region = OutlineIndex::of_frame(&crate::vision::geometry::resample_closed(&corners, 2.0));
+        let lower = |q: Pt| (54.0..346.0).contains(&q.x) && (34.0..136.0).contains(&q.y);
+        let (with, without) = (OutlineIndex::new(&plate(10.0)), OutlineIndex::new(&plate(0.0)));
+        for shade in [155u8, 205] {
+            for (lug, first_with, expect) in
+                [(true, true, Follows::Best), (true, false, Follows::Rival), (false, true, Follows::Rival), (false, false, Follows::Best)]
+            {
+                let img = image(lug, shade);
+                let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
+                let (a, b) = if first_with { (&with, &without) } else { (&without, &with) };
+                let l = compare(&region, placed(a, at), placed(b, at), &lower, &lower, Some(&light), 2.0);
+                assert_eq!(l.follows(), expect, "lower part {shade}, lug in the image {lug}, lug template first {first_with}: {l:?}");
+                // Not known to lie over it, the step is too small for an edge against the belt.
+                let l = compare(&region, placed(a, at), placed(b, at), &lower, &|_| false, Some(&light), 2.0);
+                assert_eq!(l.follows(), Follows::Unclear, "{l:?}");
+            }
+        }
+        // One shade: no step either way.
+        for lug in [true, false] {
+            let img = image(lug, 180);
+            let light = Light::new(img.view().unwrap(), true, 130.0, 2.0);
+            let l = compare(&region, placed(&with, at), placed(&without, at), &lower, &lower, Some(&light), 2.0);
+            assert_eq!(l.follows(), Follows::Unclear, "lug {lug}: {l:?}");
         }
     }
 

@@ -323,6 +323,9 @@ struct Seen<'a> {
     /// Frame points where the part's own outline is not seen (against or under another part
     /// found in the region): nothing is judged there.
     excused: &'a (dyn Fn(Pt) -> bool + Sync),
+    /// Frame points where the part lies on top of another found in the region (inside it):
+    /// its edge there runs over that part's surface ([`differ::compare`]).
+    over: &'a (dyn Fn(Pt) -> bool + Sync),
     /// Where the refinement found no edge near the coarse outline and bridged the stretch with
     /// a chord (see [`boundary::refine`]): the chords (longer than the refinement's `search`)
     /// and that search, frame pixels. The part's edge lies farther than the search from them,
@@ -624,6 +627,7 @@ impl Estimator {
             contrast,
             brighter: looked.brighter,
             excused: &|_| false,
+            over: &|_| false,
             bridged: &bridged,
             search,
         };
@@ -712,19 +716,21 @@ impl Estimator {
         // nearly as well supported), the one the part follows where their templates differ.
         // Where another part found here lies against or over it, its own outline is not seen:
         // neither compared nor judged there.
-        let others: Vec<(OutlineIndex, geometry::Inside)> = ex
+        let me = ex.parts.iter().position(|o| std::ptr::eq(o, f));
+        let others: Vec<(OutlineIndex, geometry::Inside, bool)> = ex
             .parts
             .iter()
             .filter(|o| !std::ptr::eq(*o, f))
             .map(|o| {
                 let at = o.reg.pose.forward();
                 let outline: Vec<Pt> = self.lib.entries[o.entry].template.outline.iter().map(|&q| at.apply(q)).collect();
-                (OutlineIndex::of_frame(&outline), geometry::Inside::new(&outline))
+                (OutlineIndex::of_frame(&outline), geometry::Inside::new(&outline), me.is_some() && o.under == me)
             })
             .collect();
         let reach = 3.0 * self.clean_tolerance(seen.noise);
-        let excused = |q: Pt| others.iter().any(|(index, inside)| index.any_within(q, reach) || inside.contains(q));
-        let seen = &Seen { excused: &excused, ..*seen };
+        let excused = |q: Pt| others.iter().any(|(index, inside, _)| index.any_within(q, reach) || inside.contains(q));
+        let over = |q: Pt| others.iter().any(|(_, inside, beneath)| *beneath && inside.contains(q));
+        let seen = &Seen { excused: &excused, over: &over, ..*seen };
         // Every other explanation is held against the first, as the separate-part path holds
         // every candidate: one the part follows where they differ is the part; else the rival
         // reported is the first tied one the part does not clearly leave behind, else the first
@@ -888,7 +894,7 @@ impl Estimator {
             tolerance: tight,
             support: Some((other.support, best.support)),
             confidence: if segments.is_empty() { 0.0 } else { confidence(&tpl.segments, segments, &other.reg.pose, diag, lambda) },
-            local: Some(differ::compare(seen.outline_index, placed(best), placed(other), &unseen, Some(&light), tight)),
+            local: Some(differ::compare(seen.outline_index, placed(best), placed(other), &unseen, seen.over, Some(&light), tight)),
             features: None,
         };
         // Where the outlines do not tell the two apart (two faces of one outline), what the
@@ -1200,7 +1206,7 @@ impl Estimator {
             let e = &self.lib.entries[c.entry];
             differ::Placed { index: &e.index, pose: c.reg.pose, centroid: e.template.centroid }
         };
-        differ::compare(part, placed(best), placed(rival), &|_| false, None, near)
+        differ::compare(part, placed(best), placed(rival), &|_| false, &|_| false, None, near)
     }
 
     /// The closest rival of the best candidate, with where they differ and its line features'
