@@ -466,6 +466,16 @@ fn each_place_the_glance_points_to_keeps_templates_not_peaks() {
     every_part_picked(181, 86, &["T040", "T035"]);
 }
 
+/// A separate part's outline tells nothing where the refinement bridged it with a chord, and the
+/// frame's light tells instead, as on the region path. The scene: a T008 of the catalogue of
+/// seed 13 alone on the belt, whose round notch (its sibling T007 has none) the refinement at
+/// the finer decimation bridged on one wall: the part followed 56 % of the notch, short of the
+/// 70 % that tells, and was *ambiguous*. The frame shows the notch's wall: picked.
+#[test]
+fn a_separate_parts_bridged_outline_is_read_by_the_light() {
+    every_part_picked(13, 4, &["T021", "T008", "T023", "T024"]);
+}
+
 /// Belt that parts close in (between a fork's arms where another part lies across their ends)
 /// lies inside the region's outer outline but is no material: each frame gives one result per
 /// part, not a further *touching/overlapping* for "material no enrolled part explains". The

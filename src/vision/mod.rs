@@ -338,7 +338,7 @@ impl Seen<'_> {
     /// Whether the region's outline tells nothing at `q`: against or under another part found
     /// here, or within twice the search of a chord the refinement bridged.
     fn unseen(&self, q: Pt) -> bool {
-        (self.excused)(q) || self.bridged.iter().any(|&(a, b)| geometry::point_segment(q, a, b).0 < 2.0 * self.search)
+        (self.excused)(q) || by_chord(self.bridged, self.search, q)
     }
 }
 
@@ -610,13 +610,7 @@ impl Estimator {
         };
         let outline_index = OutlineIndex::of_frame(&whole.outline);
         let search = p.refine_params(coarse.factor).search;
-        let bridged: Vec<(Pt, Pt)> = whole
-            .outline
-            .iter()
-            .zip(whole.outline.iter().cycle().skip(1))
-            .filter(|(a, b)| (**b - **a).norm() > search)
-            .map(|(a, b)| (*a, *b))
-            .collect();
+        let bridged = bridged(&whole.outline, search);
         let seen = Seen {
             frame,
             coarse,
@@ -962,7 +956,14 @@ impl Estimator {
         let t = Instant::now();
         let lambda = self.lambda(noise, contrast);
         let edge = shape::EdgeTest::new(coarse, noise, contrast);
-        m.rival = self.rival(&outline, &mut cands, &est.segments, diag, lambda, &limits);
+        // Where the refinement bridged a stretch with a chord, the outline tells nothing there
+        // and the frame's light may, as on the region path ([`Seen::unseen`]).
+        let search = p.refine_params(coarse.factor).search;
+        let chords = bridged(&outline, search);
+        let unseen = |q: Pt| by_chord(&chords, search, q);
+        let light = differ::Light::new(frame, brighter, contrast, noise);
+        let view = Unseen { unseen: &unseen, light: &light };
+        m.rival = self.rival(&outline, &mut cands, &est.segments, diag, lambda, &limits, &view);
         // Where the outlines do not tell the two apart, what lies inside may; when it tells for
         // the rival, the rival is the part (registered fully, first in `cands`, ties looked at
         // again from it).
@@ -970,7 +971,7 @@ impl Estimator {
             let e = &self.lib.entries[cands[k].entry];
             cands[k].reg = register::register(&outline, &e.index, cands[k].reg.pose, cands[k].tolerance, 1);
             cands.swap(0, k);
-            m.rival = self.rival(&outline, &mut cands, &est.segments, diag, lambda, &limits);
+            m.rival = self.rival(&outline, &mut cands, &est.segments, diag, lambda, &limits, &view);
             self.inside(&mut m.rival, &cands, &edge, &limits);
         }
         tm.confidence += ms(t);
@@ -1200,13 +1201,14 @@ impl Estimator {
     }
 
     /// Where candidates `best` and `rival` differ on the part (outline `part`), at the tight
-    /// tolerance `near` ([`differ::separation`]).
-    fn local(&self, part: &OutlineIndex, best: &Candidate, rival: &Candidate, near: f64) -> Local {
+    /// tolerance `near` ([`differ::separation`]); where `view` says the outline tells nothing,
+    /// by its light.
+    fn local(&self, part: &OutlineIndex, best: &Candidate, rival: &Candidate, near: f64, view: &Unseen<'_>) -> Local {
         let placed = |c: &Candidate| {
             let e = &self.lib.entries[c.entry];
             differ::Placed { index: &e.index, pose: c.reg.pose, centroid: e.template.centroid }
         };
-        differ::compare(part, placed(best), placed(rival), &|_| false, &|_| false, None, near)
+        differ::compare(part, placed(best), placed(rival), view.unseen, &|_| false, Some(view.light), near)
     }
 
     /// The closest rival of the best candidate, with where they differ and its line features'
@@ -1215,6 +1217,7 @@ impl Estimator {
     /// part: it is registered fully and moved first in `cands`, and the ties are looked at again
     /// from it (at most twice). The rival reported is the first tied one the part does not
     /// clearly leave behind, else the first.
+    #[allow(clippy::too_many_arguments)]
     fn rival(
         &self,
         outline: &[Pt],
@@ -1223,6 +1226,7 @@ impl Estimator {
         diag: f64,
         lambda: f64,
         limits: &decide::Limits,
+        view: &Unseen<'_>,
     ) -> Option<Rival> {
         for round in 0..3 {
             let best = &self.lib.entries[cands[0].entry];
@@ -1235,7 +1239,7 @@ impl Estimator {
             let judged: Vec<(usize, Rival)> = tied
                 .into_iter()
                 .map(|(k, mut r)| {
-                    r.local = Some(self.local(part, &cands[0], &cands[k], r.tolerance));
+                    r.local = Some(self.local(part, &cands[0], &cands[k], r.tolerance, view));
                     (k, r)
                 })
                 .collect();
@@ -1255,6 +1259,27 @@ impl Estimator {
         }
         None
     }
+}
+
+/// Where a separate part's refined outline tells nothing ([`boundary::refine`]'s chords) and the
+/// frame's light that may tell instead, for [`differ::compare`].
+struct Unseen<'a> {
+    unseen: &'a dyn Fn(Pt) -> bool,
+    light: &'a differ::Light<'a>,
+}
+
+/// The chords with which the refinement bridged a refined `outline` (consecutive points
+/// farther apart than its `search`, frame pixels): no edge was found near the coarse outline
+/// there, and the part's edge lies farther than the search from them, as at the back of a
+/// notch whose shadow the coarse edges followed.
+fn bridged(outline: &[Pt], search: f64) -> Vec<(Pt, Pt)> {
+    outline.iter().zip(outline.iter().cycle().skip(1)).filter(|(a, b)| (**b - **a).norm() > search).map(|(a, b)| (*a, *b)).collect()
+}
+
+/// Whether `q` lies within twice the `search` of one of the `bridged` chords: what the outline
+/// shows there is the chord, not the part's edge.
+fn by_chord(bridged: &[(Pt, Pt)], search: f64, q: Pt) -> bool {
+    bridged.iter().any(|&(a, b)| geometry::point_segment(q, a, b).0 < 2.0 * search)
 }
 
 fn named(t: &Template) -> Named {
