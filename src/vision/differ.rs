@@ -259,11 +259,11 @@ impl<'a> Light<'a> {
         self.step(at, n, r) >= self.least
     }
 
-    /// Whether the frame steps from part (inside) to a darker (brighter, for dark parts)
-    /// surface of a part beneath (outside) across that line: the step that shows an outline
-    /// at all where one part lies on another, the layering's (a tenth of the contrast, 0.4 x
-    /// its edge threshold of a quarter). With the part's polarity only: a lower part's own
-    /// edges, crossed by a line over it, come with either.
+    /// Whether the frame steps between part (inside) and the surface of a part beneath
+    /// (outside) across that line, of either sign: the lower part's surface is shaded by its
+    /// own faces, a little darker or brighter than the upper part's. The step counts from what
+    /// shows an outline at all where one part lies on another, the layering's (a tenth of the
+    /// contrast, 0.4 x its edge threshold of a quarter).
     pub fn shows_over(&self, at: Pt, n: Pt, r: f64) -> bool {
         self.step(at, n, r).abs() >= self.least_over
     }
