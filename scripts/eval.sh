@@ -1,13 +1,16 @@
 #!/usr/bin/env bash
 # The accuracy evaluation behind the README's numbers, on all five sets at once: the built-in
 # simulator (fresh scenes of every condition), ../shared/samples, ../shared/samples-hard, the
-# simulator's generated 40-type catalogue and ../shared/samples-catalog. Each set's templates are
+# simulator's generated 40-type catalogue and ../shared/samples-catalog; last, the simulator's
+# touching and overlapping pairs again with a generated catalogue's types enrolled beside the
+# three. Each set's templates are
 # enrolled exactly as a new user would (types A/B/C or the simulator's three models as ids
 # 1/2/3, both faces; a catalogue's folder in one `enroll --dir`, ids in name order; the unknown
 # types never). Usage:
 #   scripts/eval.sh [OUT_DIR]          (default target/eval; the simulated sets are kept there)
 # Env: SIM_COUNT (scenes, default 180), SIM_SEED (default 11), CAT_COUNT (catalogue scenes,
-# default 90), CAT_TYPES (default 40).
+# default 90), CAT_TYPES (default 40), MIXED_TYPES (catalogue types beside the three, default 40,
+# at most 100).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/deps.sh
@@ -65,3 +68,23 @@ for set in "$cat" ../shared/samples-catalog; do
   echo "== $(basename "$set") ($set)"
   "$bin" eval --kb "$kb" --truth "$set/truth.jsonl"
 done
+
+# The simulator's touching and overlapping pairs of the three built-in types again, with
+# MIXED_TYPES (default 40) types of a generated catalogue (seed 7) enrolled beside the three:
+# what a larger catalogue does to the region search on scenes it does not change.
+mixed_types=${MIXED_TYPES:-40}
+pool="$out/sim-catalog100-seed7"
+if [ ! -f "$pool/truth.jsonl" ]; then
+  "$bin" simulate --out "$pool" --catalog 100 --seed 7 --count 1 >/dev/null
+fi
+kb="$out/sim-mixed$mixed_types.kb.toml"
+cp "$out/sim.kb.toml" "$kb"
+for k in $(seq 1 "$mixed_types"); do
+  t=$(printf 'T%03d' "$k")
+  for f in up down; do
+    "$bin" enroll --kb "$kb" --type "$t" --id $((k + 3)) --face $f "$pool/templates/${t}_$f.png" >/dev/null
+  done
+done
+grep -E '"condition":"(touching|overlapping)"' "$sim/truth.jsonl" >"$sim/pairs.jsonl"
+echo "== the simulator's pairs, 3 + $mixed_types types enrolled ($sim/pairs.jsonl)"
+"$bin" eval --kb "$kb" --truth "$sim/pairs.jsonl"

@@ -625,3 +625,37 @@ fn a_second_notch_beside_the_parents_is_a_type_not_enrolled() {
 fn a_smaller_fork_of_another_shape_is_not_the_known_fork() {
     one_unknown_part(83, 62, "U02");
 }
+
+/// A hypothesis the image rules out at its aimed pose gives its place among those looked at to
+/// the best supported of the vote's further strongest. Ranked by their share of votes alone, a
+/// round part's templates took every place: any arc of its radius votes for it from each of its
+/// rotations alike (the three angle bins of a peak's box hold the same votes). The scene: the
+/// simulator's flange lying under a clevis (scene 150 of seed 11, the three-type eval set),
+/// with the three types and 40 more of a generated catalogue enrolled: the clevis was not
+/// found (its material left over, *touching/overlapping*) and the flange beneath it accepted.
+#[test]
+fn a_round_template_fitting_the_parts_arcs_does_not_take_every_look() {
+    use lfi_bridge::sim::{SimConfig, catalog};
+    use lfi_bridge::vision::Template;
+    let _shared = common::MACHINE.blocking_read();
+    let sim = common::simulator(11, None);
+    let mut templates = common::enrolled(&sim);
+    let mut cat = catalog::generate(100, 7);
+    cat.known.truncate(40);
+    let params = Params::default();
+    let rendered = Simulator::with_catalogue(SimConfig { seed: 7, ..SimConfig::default() }, &cat).unwrap().templates().unwrap();
+    for (k, (name, face, img)) in rendered.iter().enumerate() {
+        templates.push(Template::from_image(img.view().unwrap(), name, 4 + (k / 2) as u16, *face, None, &params).unwrap());
+    }
+    let est = Estimator::new(&templates, params).unwrap();
+    let scene = sim.scene(150).unwrap();
+    let names: Vec<&str> = scene.truth.parts.iter().map(|t| t.type_name.as_str()).collect();
+    assert_eq!(names, ["flange", "clevis"], "the scene of the three-type eval set");
+    let parts = est.estimate(scene.image.view().unwrap()).unwrap().parts;
+    every_accept_is_right(&parts, &scene.truth, 150);
+    let (flange, clevis) = (&scene.truth.parts[0], &scene.truth.parts[1]);
+    assert!(flange.visible_fraction < 0.98 && clevis.visible_fraction >= 0.98, "the flange lies under the clevis");
+    picked(&parts, clevis);
+    let under = at(&parts, flange.x_px, flange.y_px).expect("a result at the flange");
+    assert!(!under.accepted && under.reason == Reason::Covered, "the flange beneath: {}", under.detail());
+}

@@ -88,9 +88,22 @@ fn take(look: &Look<'_>, region: &Region<'_>, hyps: Vec<(usize, Similarity, u32)
             found.push(part);
         }
     };
+    // The strongest by share of votes are looked at, but one whose aimed pose the image
+    // already rules out (what `Look::at`'s first cheap look would end) gives its place to the
+    // best supported of the rest (see `vote::CANDIDATES`).
+    let aimed: Vec<(usize, Similarity, f64)> = each(region.pool, &hyps, |&(ei, init, _)| {
+        let (pose, support) = look.aim(ei, init);
+        (ei, pose, support)
+    });
+    let viable = |a: &(usize, Similarity, f64)| a.2 >= verify::LOOK_FROM;
+    let first = vote::MAX_HYPOTHESES.min(aimed.len());
+    let mut rest: Vec<(usize, Similarity, f64)> = aimed[first..].iter().copied().filter(viable).collect();
+    rest.sort_by(|a, b| b.2.total_cmp(&a.2));
+    let mut aimed: Vec<(usize, Similarity, f64)> = aimed[..first].iter().copied().filter(viable).collect();
+    let room = vote::MAX_HYPOTHESES - aimed.len();
+    aimed.extend(rest.into_iter().take(room));
     if region.pool.is_none() {
-        for (ei, init, _) in hyps {
-            let init = look.aim(ei, init);
+        for (ei, init, _) in aimed {
             if !verify::already_found(found, ei, &init) {
                 let part = look.at(ei, init);
                 keep(ei, &init, part, found);
@@ -98,8 +111,8 @@ fn take(look: &Look<'_>, region: &Region<'_>, hyps: Vec<(usize, Similarity, u32)
         }
         return;
     }
-    let aimed: Vec<(usize, Similarity)> = each(region.pool, &hyps, |&(ei, init, _)| (ei, look.aim(ei, init)));
-    let fresh: Vec<(usize, Similarity)> = aimed.into_iter().filter(|(ei, init)| !verify::already_found(found, *ei, init)).collect();
+    let fresh: Vec<(usize, Similarity)> =
+        aimed.into_iter().filter(|(ei, init, _)| !verify::already_found(found, *ei, init)).map(|(ei, init, _)| (ei, init)).collect();
     let parts = each(region.pool, &fresh, |&(ei, init)| look.at(ei, init));
     for ((ei, init), part) in fresh.into_iter().zip(parts) {
         keep(ei, &init, part, found);
@@ -171,7 +184,7 @@ fn look_alikes(look: &Look<'_>, region: &Region<'_>, found: &mut Vec<Found>, mas
                     angle_rad: pose.angle_rad + rel.angle_rad,
                     scale: pose.scale * rel.scale,
                 };
-                look.at(j, look.aim(j, init))
+                look.at(j, look.aim(j, init).0)
             })
             .collect();
         // Best supported first (stable: nearest look-alike first among equals).

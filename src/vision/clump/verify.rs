@@ -12,6 +12,10 @@ use super::found::{Found, MIN_SUPPORT, Probe, Region};
 /// offset between them) for a deviation beyond the tolerance to count as the same outline moved.
 const PARALLEL_COS: f64 = 0.9;
 
+/// Least cheap support at a hypothesis's aimed pose that a look goes on from: below it, the
+/// outline is mostly not there.
+pub(super) const LOOK_FROM: f64 = MIN_SUPPORT - 0.2;
+
 /// The angles tried around a vote peak's: +-4 steps of 2 degrees, about a bin's width either
 /// way, leaving at most a degree (under 8 px at a 450 px radius) to the registration.
 const ANGLE_SEARCH: i32 = 4;
@@ -38,8 +42,9 @@ impl<'a> Look<'a> {
     }
 
     /// The start of the look at template `ei` near a vote peak's `init`: the peak's pose at the
-    /// best of a few angles around it.
-    pub(super) fn aim(&self, ei: usize, init: Similarity) -> Similarity {
+    /// best of a few angles around it, and the cheap support there (which ranks the hypotheses
+    /// looked at).
+    pub(super) fn aim(&self, ei: usize, init: Similarity) -> (Similarity, f64) {
         let (ext, edge) = (&self.ext, &self.edge);
         let e = &self.lib.entries[ei];
         let tol = (self.tolerance)(ei);
@@ -53,7 +58,7 @@ impl<'a> Look<'a> {
                 (pose, support(&e.shape, &pose, ext, edge, 2.0 * tol, 8))
             })
             .max_by(|a, b| a.1.total_cmp(&b.1))
-            .map_or(init, |(pose, _)| pose)
+            .unwrap_or((init, 0.0))
     }
 
     /// The part template `ei` explains from `init` (its [`Look::aim`]), if any; whether it is
@@ -64,7 +69,7 @@ impl<'a> Look<'a> {
         let tol = (self.tolerance)(ei);
         // Cheap looks first: most peaks are another part's outline voting by chance, or the
         // same part again (see `already_found`), and end here before any registration.
-        if support(&e.shape, &init, ext, edge, 2.0 * tol, 4) < MIN_SUPPORT - 0.2 {
+        if support(&e.shape, &init, ext, edge, 2.0 * tol, 4) < LOOK_FROM {
             return None;
         }
         // Registration on the stretch of the region's outline the part can reach: the rest is
