@@ -43,9 +43,10 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     if scene.len() < 8 {
         return Explained::default();
     }
-    let mut vote = Vote::new(lib, region.outline, glance);
-    let hyps = vote.hypotheses(&scene, 1.0, region.pool);
     let look = Look::new(lib, region, &tolerance);
+    let viable = |ei: usize, pose: &Similarity| look.aim(ei, *pose).1 >= verify::LOOK_FROM;
+    let mut vote = Vote::new(lib, region.outline, glance);
+    let hyps = vote.hypotheses(&scene, 1.0, region.pool, &viable);
     let (mut found, mut masks) = (Vec::new(), Vec::new());
     take(&look, region, hyps, &mut found, &mut masks);
     // A part whose outline shows less than its neighbour's may not make the first vote's
@@ -64,7 +65,7 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         if 2 * rest.len() < shortest {
             break;
         }
-        let hyps = vote.hypotheses(&rest, scale, region.pool);
+        let hyps = vote.hypotheses(&rest, scale, region.pool, &viable);
         take(&look, region, hyps, &mut found, &mut masks);
     }
     let (mut found, mut masks, keep, mut rivals) = one_per_part(lib, found, masks);
