@@ -43,10 +43,9 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
     if scene.len() < 8 {
         return Explained::default();
     }
-    let look = Look::new(lib, region, &tolerance);
-    let viable = |ei: usize, pose: &Similarity| look.aim(ei, *pose).1 >= verify::LOOK_FROM;
     let mut vote = Vote::new(lib, region.outline, glance);
-    let hyps = vote.hypotheses(&scene, 1.0, region.pool, &viable);
+    let hyps = vote.hypotheses(&scene, 1.0, region.pool);
+    let look = Look::new(lib, region, &tolerance);
     let (mut found, mut masks) = (Vec::new(), Vec::new());
     take(&look, region, hyps, &mut found, &mut masks);
     // A part whose outline shows less than its neighbour's may not make the first vote's
@@ -65,7 +64,7 @@ pub fn explain(lib: &Library, region: &Region<'_>, tolerance: impl Fn(usize) -> 
         if 2 * rest.len() < shortest {
             break;
         }
-        let hyps = vote.hypotheses(&rest, scale, region.pool, &viable);
+        let hyps = vote.hypotheses(&rest, scale, region.pool);
         take(&look, region, hyps, &mut found, &mut masks);
     }
     let (mut found, mut masks, keep, mut rivals) = one_per_part(lib, found, masks);

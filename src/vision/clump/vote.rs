@@ -54,11 +54,7 @@ const GLANCE_THIN: usize = 4;
 /// place lost picks and gave a false accept; 6 and 8 changed one decision that the tests'
 /// glance check (`tests/shortlist.rs`) holds against the full vote. The look-alikes of each part
 /// found are looked at anyway (`look_alikes`), so a sibling a glance passes over still stands
-/// as a rival. A peak whose aimed pose the image rules out (cheap support below
-/// `verify::LOOK_FROM`) takes no place, overall or at a place: with the three built-in types and
-/// 97 of a generated catalogue enrolled, rings voting in a clevis's C (see [`CANDIDATES`])
-/// filled the places and the pair's own templates never voted in full (touching pairs found
-/// 85 -> 95 %, every `eval` set the same).
+/// as a rival.
 const GLANCE_KEEP: usize = 8;
 /// Templates kept per place the glance's peaks point to (see [`GLANCE_KEEP`]).
 const GLANCE_PLACE: usize = 8;
@@ -91,14 +87,11 @@ impl<'a> Vote<'a> {
     /// pose, votes), the [`CANDIDATES`] with the most votes as a fraction of the template's
     /// voting points.
     /// With a `pool`, its workers vote at once, each template on one of them, dealt in turn.
-    /// `viable(entry, pose)`: whether the image leaves a glance peak worth a place (see
-    /// [`GLANCE_KEEP`]).
     pub(super) fn hypotheses(
         &mut self,
         scene: &[(Pt, usize, i32)],
         scale: f64,
         pool: Option<&rayon::ThreadPool>,
-        viable: &dyn Fn(usize, &Similarity) -> bool,
     ) -> Vec<(usize, Similarity, u32)> {
         let voting = std::time::Instant::now();
         let lib = self.lib;
@@ -114,19 +107,15 @@ impl<'a> Vote<'a> {
         } else if self.glance && lib.entries.len() > GLANCE_FROM {
             // The glance: each template's best share of votes from a thinned region.
             let thin: Vec<(Pt, usize, i32)> = scene.iter().step_by(GLANCE_THIN).copied().collect();
-            let mut shares: Vec<(usize, f64, Similarity)> = self
+            let mut shares: Vec<(usize, f64, Pt)> = self
                 .deal(&all, pool, workers, &thin, &rot, GLANCE_THIN)
                 .into_iter()
-                .map(|(ei, pose, votes)| (ei, votes as f64 / lib.entries[ei].shape.vote.len() as f64, pose))
+                .map(|(ei, pose, votes)| (ei, votes as f64 / lib.entries[ei].shape.vote.len() as f64, pose.to))
                 .collect();
             shares.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
             let mut keep: Vec<usize> = Vec::new();
-            // A peak whose aimed pose the image already rules out takes no template's place,
-            // overall or at a place (asked only of the peaks that would take one).
-            let mut told: Vec<Option<bool>> = vec![None; shares.len()];
-            let mut ok = |k: usize| *told[k].get_or_insert_with(|| viable(shares[k].0, &shares[k].2));
-            for (k, &(ei, _, _)) in shares.iter().enumerate() {
-                if !keep.contains(&ei) && ok(k) {
+            for &(ei, _, _) in &shares {
+                if !keep.contains(&ei) {
                     keep.push(ei);
                     if keep.len() == GLANCE_KEEP {
                         break;
@@ -139,15 +128,14 @@ impl<'a> Vote<'a> {
             // shape a little turned or shifted) take no other template's place.
             let mut places: Vec<(Pt, Vec<usize>)> = Vec::new();
             let mut extra: Vec<usize> = Vec::new();
-            for (k, &(ei, _, pose)) in shares.iter().enumerate() {
-                let at = pose.to;
+            for &(ei, _, at) in &shares {
                 let admitted = match places.iter().position(|(c, _)| (at - *c).norm() <= lib.smallest_radius) {
-                    Some(p) if places[p].1.contains(&ei) => true,
-                    Some(p) if places[p].1.len() < GLANCE_PLACE && ok(k) => {
-                        places[p].1.push(ei);
+                    Some(k) if places[k].1.contains(&ei) => true,
+                    Some(k) if places[k].1.len() < GLANCE_PLACE => {
+                        places[k].1.push(ei);
                         true
                     }
-                    None if places.len() < GLANCE_PLACES && ok(k) => {
+                    None if places.len() < GLANCE_PLACES => {
                         places.push((at, vec![ei]));
                         true
                     }
