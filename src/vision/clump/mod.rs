@@ -90,20 +90,26 @@ fn take(look: &Look<'_>, region: &Region<'_>, hyps: Vec<(usize, Similarity, u32)
     };
     // The strongest by share of votes are looked at, but one whose aimed pose the image
     // already rules out (what `Look::at`'s first cheap look would end) gives its place to the
-    // best supported of the rest (see `vote::CANDIDATES`).
-    let aimed: Vec<(usize, Similarity, f64)> = each(region.pool, &hyps, |&(ei, init, _)| {
-        let (pose, support) = look.aim(ei, init);
-        (ei, pose, support)
-    });
-    let viable = |a: &(usize, Similarity, f64)| a.2 >= verify::LOOK_FROM;
-    let first = vote::MAX_HYPOTHESES.min(aimed.len());
-    let mut rest: Vec<(usize, Similarity, f64)> = aimed[first..].iter().copied().filter(viable).collect();
-    rest.sort_by(|a, b| b.2.total_cmp(&a.2));
-    let mut aimed: Vec<(usize, Similarity, f64)> = aimed[..first].iter().copied().filter(viable).collect();
-    let room = vote::MAX_HYPOTHESES - aimed.len();
-    aimed.extend(rest.into_iter().take(room));
+    // best supported of the rest (see `vote::CANDIDATES`), which is aimed only then.
+    let aim = |hyps: &[(usize, Similarity, u32)]| -> Vec<(usize, Similarity, f64)> {
+        each(region.pool, hyps, |&(ei, init, _)| {
+            let (pose, support) = look.aim(ei, init);
+            (ei, pose, support)
+        })
+        .into_iter()
+        .filter(|a| a.2 >= verify::LOOK_FROM)
+        .collect()
+    };
+    let first = vote::MAX_HYPOTHESES.min(hyps.len());
+    let mut looked = aim(&hyps[..first]);
+    if looked.len() < vote::MAX_HYPOTHESES && first < hyps.len() {
+        let mut rest = aim(&hyps[first..]);
+        rest.sort_by(|a, b| b.2.total_cmp(&a.2));
+        let room = vote::MAX_HYPOTHESES - looked.len();
+        looked.extend(rest.into_iter().take(room));
+    }
     if region.pool.is_none() {
-        for (ei, init, _) in aimed {
+        for (ei, init, _) in looked {
             if !verify::already_found(found, ei, &init) {
                 let part = look.at(ei, init);
                 keep(ei, &init, part, found);
@@ -112,7 +118,7 @@ fn take(look: &Look<'_>, region: &Region<'_>, hyps: Vec<(usize, Similarity, u32)
         return;
     }
     let fresh: Vec<(usize, Similarity)> =
-        aimed.into_iter().filter(|(ei, init, _)| !verify::already_found(found, *ei, init)).map(|(ei, init, _)| (ei, init)).collect();
+        looked.into_iter().filter(|(ei, init, _)| !verify::already_found(found, *ei, init)).map(|(ei, init, _)| (ei, init)).collect();
     let parts = each(region.pool, &fresh, |&(ei, init)| look.at(ei, init));
     for ((ei, init), part) in fresh.into_iter().zip(parts) {
         keep(ei, &init, part, found);
